@@ -1,0 +1,116 @@
+"""``ipm``: the command line (DESIGN.md, "Command-line contract").
+
+Bad input ends with one line on stderr and exit code 2; set ``IPM_DEBUG=1`` for tracebacks.
+Heavy modules are imported after the thread settings, which XLA reads at import time.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="ipm", description="3D reconstruction by inverse procedural modeling")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("synth", help="render a synthetic reference case")
+    s.add_argument("--case", required=True, help="case name (datasets_synthetic/NAME.json)")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--views", type=int, default=1, help="number of views (view 0 is the input view)")
+    s.add_argument("--res", type=int, default=256, help="image width and height in pixels")
+    s.add_argument("--spp", type=int, default=64, help="samples per pixel of the RGB renders")
+
+    r = sub.add_parser("reconstruct", help="fit a procedural generator to masks")
+    r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")
+    r.add_argument("--views", required=True, help="transforms.json with masks")
+    r.add_argument("--out", required=True, help="output directory")
+    r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam)")
+    r.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
+    r.add_argument("--seed", type=int, default=0, help="random seed")
+    r.add_argument("--n-input-views", type=int, default=None,
+                   help="use only the first N frames of transforms.json (default: all)")
+
+    e = sub.add_parser("evaluate", help="64-view silhouette IoU and the other metrics")
+    e.add_argument("--reference", required=True, help="reference mesh (PLY)")
+    e.add_argument("--mesh", required=True, help="reconstructed mesh (PLY)")
+    e.add_argument("--out", required=True, help="metrics JSON")
+    e.add_argument("--views", type=int, default=64, help="number of metric views")
+    e.add_argument("--res", type=int, default=256, help="metric image size")
+    e.add_argument("--grid", type=int, default=128, help="volumetric IoU grid size")
+    e.add_argument("--preview", default=None, help="optional PNG strip of mask overlays")
+
+    lr = sub.add_parser("reference-line", help="a table reference line from the reference mesh")
+    lr.add_argument("name", help="convex_hull or bounding_sphere")
+    lr.add_argument("--reference", required=True, help="reference mesh (PLY)")
+    lr.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json)")
+
+    for sp in (s, r, e, lr):
+        sp.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU threads")
+        sp.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Mitsuba/JAX device")
+        sp.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _run(args) -> None:
+    from ipm.runtime import configure_threads
+
+    configure_threads(args.threads, args.device)
+    if args.command == "synth":
+        from ipm.runtime import set_mitsuba_variant
+        from ipm.synth import synthesize
+
+        set_mitsuba_variant(args.device, args.threads)
+        synthesize(args.case, args.out, n_views=args.views, res=args.res, spp=args.spp, progress=not args.quiet)
+    elif args.command == "reconstruct":
+        from ipm.generators import GENERATORS
+        from ipm.methods import METHODS
+        from ipm.runtime import set_mitsuba_variant
+
+        GENERATORS[args.generator]  # fail fast on unknown names, before any rendering
+        method = METHODS[args.method]
+        set_mitsuba_variant(args.device, args.threads)
+        info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
+                      progress=not args.quiet, n_input_views=args.n_input_views)
+        print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
+    elif args.command == "evaluate":
+        from ipm.metrics.evaluate import evaluate_files
+
+        m = evaluate_files(args.reference, args.mesh, args.out, n_views=args.views, res=args.res,
+                           grid=args.grid, preview_path=args.preview)
+        print(f"{args.out}: IoU {m['iou_mean']:.4f} (min {m['iou_min']:.4f}), volumetric IoU {m['viou']:.4f}")
+    elif args.command == "reference-line":
+        from ipm.io import atomic_dir, load_mesh, save_ply, write_json
+        from ipm.reference_lines import REFERENCE_LINES
+
+        make = REFERENCE_LINES[args.name]
+        t0 = time.perf_counter()
+        mesh = make(load_mesh(args.reference))
+        with atomic_dir(args.out) as tmp:
+            save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces)
+            write_json(tmp / "timing.json", {"seconds": time.perf_counter() - t0})
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    from ipm.errors import UserError
+
+    try:
+        _run(args)
+    except UserError as exc:
+        print(f"ipm {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"ipm {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001  one line for the user; IPM_DEBUG=1 shows the traceback
+        if os.environ.get("IPM_DEBUG"):
+            raise
+        print(f"ipm {args.command}: failed: {type(exc).__name__}: {exc} (IPM_DEBUG=1 for details)", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

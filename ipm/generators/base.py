@@ -1,0 +1,149 @@
+"""What every procedural generator provides: a parameter spec, presets, and a pure JAX mesh function.
+
+A generator's mesh topology (faces, part labels, UVs) depends only on its discrete
+parameters and the level of detail; vertex positions are a pure, jittable JAX function
+of the full parameter vector, so ``jax.jacfwd`` gives dpos/dP (zero for discrete entries).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ipm.errors import UserError
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Names, bounds, discreteness and defaults of a generator's parameters (physical units)."""
+
+    names: tuple[str, ...]
+    """Parameter names, in vector order."""
+    lower: np.ndarray
+    """Lower bounds, shape (n,)."""
+    upper: np.ndarray
+    """Upper bounds, shape (n,)."""
+    discrete: np.ndarray
+    """True for integer-valued parameters (their derivative is zero), shape (n,)."""
+    default: np.ndarray
+    """Default values, shape (n,)."""
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @cached_property
+    def index(self) -> dict[str, int]:
+        return {n: i for i, n in enumerate(self.names)}
+
+    def to_unit(self, x: np.ndarray) -> np.ndarray:
+        """Map physical values to the unit cube that optimisers work in."""
+        return (np.asarray(x, np.float64) - self.lower) / (self.upper - self.lower)
+
+    def from_unit(self, u: np.ndarray) -> np.ndarray:
+        """Map unit-cube values back to physical values, rounding discrete entries."""
+        u = np.clip(np.asarray(u, np.float64), 0.0, 1.0)
+        x = self.lower + u * (self.upper - self.lower)
+        return np.where(self.discrete, np.round(x), x)
+
+    def clip(self, x: np.ndarray) -> np.ndarray:
+        """Clip physical values into bounds and round discrete entries."""
+        x = np.clip(np.asarray(x, np.float64), self.lower, self.upper)
+        return np.where(self.discrete, np.round(x), x)
+
+    def as_dict(self, x: np.ndarray) -> dict[str, float]:
+        """Parameter values by name (discrete ones as ints)."""
+        return {n: (int(round(v)) if d else float(v)) for n, v, d in zip(self.names, x, self.discrete)}
+
+    def from_dict(self, values: dict[str, float], base: np.ndarray | None = None) -> np.ndarray:
+        """A vector from ``base`` (default: defaults) with named entries replaced; unknown names fail."""
+        x = np.array(self.default if base is None else base, np.float64)
+        for name, v in values.items():
+            if name not in self.index:
+                raise UserError(f"unknown parameter {name!r}")
+            v = float(v)
+            if not np.isfinite(v):
+                raise UserError(f"parameter {name!r} is not finite")
+            x[self.index[name]] = v
+        return x
+
+
+def make_spec(entries: Sequence[tuple[str, float, float, bool, float]]) -> ParamSpec:
+    """Build a spec from ``(name, lower, upper, discrete, default)`` rows."""
+    names, lo, hi, disc, dflt = zip(*entries)
+    return ParamSpec(tuple(names), np.array(lo, float), np.array(hi, float),
+                     np.array(disc, bool), np.array(dflt, float))
+
+
+@dataclass(frozen=True)
+class Topology:
+    """The parts of a mesh that do not move with continuous parameters."""
+
+    faces: np.ndarray
+    """Triangle vertex indices, shape (F, 3), counter-clockwise seen from outside."""
+    labels: np.ndarray
+    """Part label per triangle, shape (F,), indexing the generator's ``part_names``."""
+    uv: np.ndarray
+    """Texture coordinates per vertex, shape (V, 2); u wraps around at 1 for revolved parts."""
+
+
+@dataclass
+class Mesh:
+    """A generated mesh with everything a user needs to edit or render it."""
+
+    vertices: np.ndarray
+    """Positions, shape (V, 3)."""
+    faces: np.ndarray
+    """Triangles, shape (F, 3)."""
+    normals: np.ndarray
+    """Unit vertex normals, shape (V, 3)."""
+    uv: np.ndarray
+    """Texture coordinates, shape (V, 2)."""
+    labels: np.ndarray
+    """Part label per triangle, shape (F,)."""
+    part_names: tuple[str, ...]
+    """Names of the part labels."""
+
+
+class Generator:
+    """Base class: subclasses set ``name``, ``spec``, ``part_names``, ``presets``, ``lods``
+    and implement ``topology_key``, ``topology`` and ``positions_fn``."""
+
+    name: str
+    spec: ParamSpec
+    part_names: tuple[str, ...]
+    presets: dict[str, np.ndarray]
+    lods: tuple[int, ...] = (0, 1, 2)
+
+    def topology_key(self, x: np.ndarray) -> tuple:
+        """The discrete parameter values that decide the topology."""
+        raise NotImplementedError
+
+    def topology(self, key: tuple, lod: int) -> Topology:
+        raise NotImplementedError
+
+    def positions_fn(self, key: tuple, lod: int) -> Callable:
+        """A pure JAX function: physical parameter vector (n,) -> vertex positions (V, 3)."""
+        raise NotImplementedError
+
+    def mesh(self, x: np.ndarray, lod: int = 1) -> Mesh:
+        """Generate the mesh for physical parameters ``x`` (numpy in, numpy out)."""
+        import jax.numpy as jnp
+
+        x = self.spec.clip(x)
+        key = self.topology_key(x)
+        topo = self.topology(key, lod)
+        verts = self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32))
+        verts = np.asarray(verts, np.float64)
+        return Mesh(verts, topo.faces, vertex_normals(verts, topo.faces), topo.uv, topo.labels,
+                    self.part_names)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals."""
+    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)

@@ -1,0 +1,133 @@
+"""Dishes generator (paper, Figure 5; the authors' 53-parameter layout in DESIGN.md).
+
+1. a profile spline from 9 radial offsets at equally spaced heights;
+2. a closed profile: outer wall, flat rim, inner wall (constant thickness), inner and outer bottom;
+3. revolved about +y into the body (a closed surface between two poles);
+4. optionally a handle: a C-shaped spline of 20 control points around a centre at
+   ``handle_height`` on the body surface (distances ``handle_radius_k``), swept by a tube whose
+   radius is ``handle_thickness * handle_thick_coef_k``, capped at both ends inside the wall.
+Object frame: y up, the base at y = 0, the handle on the +x side. Sizes are in units where a
+mug is about 1 tall; pose scale carries the absolute size.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ipm.generators import GENERATORS
+from ipm.generators.base import Generator, Topology, make_spec
+from ipm.generators.geometry import (catmull_rom_at, catmull_rom_matrix, closed_sweep_faces,
+                                     revolve, sweep_tube)
+
+N_PROFILE, N_HANDLE = 9, 20
+WALL = 0.03
+"""Wall thickness of the body (object units): inner radius = r - WALL * r / (r + WALL) > 0."""
+BOTTOM = 0.03
+"""Thickness of the bottom (object units), at most a quarter of the height."""
+PROFILE_UNIT = 0.1
+"""Object units per profile offset unit (offsets 0.1..8 give radii 0.01..0.8)."""
+
+_SPEC_ROWS = (
+    [(f"profile_{i}", 0.1, 8.0, False, 4.0) for i in range(N_PROFILE)]
+    + [("y_scale", 0.1, 1.25, False, 1.0), ("has_handle", 0.0, 1.0, True, 1.0),
+       ("handle_thickness", 0.025, 0.075, False, 0.05), ("handle_height", 0.3, 0.7, False, 0.5)]
+    + [(f"handle_radius_{i}", 0.1, 0.5, False, 0.3) for i in range(N_HANDLE)]
+    + [(f"handle_thick_coef_{i}", 0.1, 2.0, False, 1.0) for i in range(N_HANDLE)]
+)
+
+# (profile points, ring points, handle samples, handle ring points) per level of detail
+_LOD = {0: (24, 32, 24, 8), 1: (40, 64, 40, 12), 2: (80, 128, 80, 16)}
+
+
+def _preset(spec, profile, y_scale, handle=None):
+    x = spec.default.copy()
+    x[:N_PROFILE] = profile
+    x[spec.index["y_scale"]] = y_scale
+    x[spec.index["has_handle"]] = 0.0 if handle is None else 1.0
+    if handle is not None:
+        thickness, height, radius = handle
+        x[spec.index["handle_thickness"]] = thickness
+        x[spec.index["handle_height"]] = height
+        x[spec.index["handle_radius_0"]:spec.index["handle_radius_0"] + N_HANDLE] = radius
+    return x
+
+
+@GENERATORS.register("dishes")
+class Dishes(Generator):
+    """Cups, mugs, bowls and jars: a revolved body with an optional swept handle."""
+
+    name = "dishes"
+    spec = make_spec(_SPEC_ROWS)
+    part_names = ("body", "handle")
+    lods = tuple(_LOD)
+    smooth_groups = ((13, 13 + N_HANDLE), (13 + N_HANDLE, 13 + 2 * N_HANDLE))
+    """Index ranges of the handle's radius and thickness sequences (smoothness prior)."""
+    presets = {
+        "mug": _preset(spec, [3.8, 3.9, 3.95, 4.0, 4.0, 4.0, 4.0, 4.0, 4.0], 1.0, (0.05, 0.5, 0.3)),
+        "tea_cup": _preset(spec, [2.2, 2.6, 3.1, 3.6, 4.0, 4.4, 4.7, 4.9, 5.0], 0.55, (0.035, 0.55, 0.2)),
+        "bowl": _preset(spec, [2.5, 4.2, 5.3, 6.1, 6.6, 7.0, 7.3, 7.5, 7.6], 0.45),
+        "jar": _preset(spec, [3.5, 4.2, 4.5, 4.4, 4.0, 3.2, 2.6, 2.6, 2.9], 1.2),
+    }
+
+    def topology_key(self, x):
+        return (int(round(float(x[self.spec.index["has_handle"]]))),)
+
+    @lru_cache(maxsize=None)
+    def topology(self, key, lod):
+        n_p, n_r, n_s, n_c = _LOD[lod]
+        rows = 2 * n_p
+        faces = [closed_sweep_faces(rows, n_r)[:, ::-1]]  # outward for the y-up revolve
+        labels = [np.zeros(len(faces[0]), np.int32)]
+        u = np.tile(np.arange(n_r) / n_r, rows)
+        v = np.repeat(np.arange(1, rows + 1) / (rows + 1), n_r)
+        uv = [np.array([[0.5, 0.0]]), np.stack([u, v], 1), np.array([[0.5, 1.0]])]
+        if key[0]:
+            offset = rows * n_r + 2
+            faces.append(closed_sweep_faces(n_s, n_c, offset))
+            labels.append(np.ones(len(faces[-1]), np.int32))
+            u = np.tile(np.arange(n_c) / n_c, n_s)
+            v = np.repeat(np.arange(1, n_s + 1) / (n_s + 1), n_c)
+            uv += [np.array([[0.5, 0.0]]), np.stack([u, v], 1), np.array([[0.5, 1.0]])]
+        return Topology(np.concatenate(faces), np.concatenate(labels), np.concatenate(uv))
+
+    @lru_cache(maxsize=None)
+    def positions_fn(self, key, lod):
+        n_p, n_r, n_s, n_c = _LOD[lod]
+        w_profile = jnp.asarray(catmull_rom_matrix(N_PROFILE, n_p), jnp.float32)
+        w_handle = jnp.asarray(catmull_rom_matrix(N_HANDLE, n_s), jnp.float32)
+        t = jnp.linspace(0.0, 1.0, n_p)
+        ix = self.spec.index
+        i_h = ix["handle_radius_0"]
+        i_c = ix["handle_thick_coef_0"]
+        with_handle = bool(key[0])
+
+        def positions(x):
+            height = x[ix["y_scale"]]
+            ctrl = PROFILE_UNIT * x[:N_PROFILE]
+            r_out = jnp.maximum(w_profile @ ctrl, 0.005)
+            r_in = r_out - WALL * r_out / (r_out + WALL)
+            bottom = jnp.minimum(BOTTOM, 0.25 * height)
+            y_out = t * height
+            y_in = bottom + t * (height - bottom)
+            radius = jnp.concatenate([r_out, r_in[::-1]])
+            ys = jnp.concatenate([y_out, y_in[::-1]])
+            parts = [jnp.zeros((1, 3)), revolve(radius, ys, n_r), jnp.stack([0.0, bottom, 0.0])[None]]
+            if with_handle:
+                s = jnp.linspace(0.0, 1.0, N_HANDLE)
+                phi = -0.5 * np.pi + np.pi * s
+                rho = x[i_h:i_h + N_HANDLE] * height
+                centre_y = x[ix["handle_height"]] * height
+                cy = centre_y + rho * jnp.sin(phi)
+                r_body = jax.vmap(lambda yy: catmull_rom_at(ctrl, yy / height))(cy)
+                cx = jnp.maximum(r_body, 0.005) - 0.5 * WALL + rho * jnp.cos(phi)
+                path_ctrl = jnp.stack([cx, cy, jnp.zeros_like(cx)], 1)
+                path = w_handle @ path_ctrl
+                tube_r = x[ix["handle_thickness"]] * (w_handle @ x[i_c:i_c + N_HANDLE])
+                tube_r = jnp.maximum(tube_r, 0.002)
+                parts += [path[:1], sweep_tube(path, tube_r, n_c), path[-1:]]
+            return jnp.concatenate(parts).astype(jnp.float32)
+
+        return jax.jit(positions)

@@ -1,0 +1,58 @@
+"""Mesh files: PLY in the world frame, GLB with one named node per part, validated loading."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from ipm.errors import UserError
+from ipm.io.atomic import atomic_path
+
+
+def load_mesh(path: str | os.PathLike, allow_empty: bool = False) -> trimesh.Trimesh:
+    """Load a triangle mesh (PLY/OBJ/GLB/...); raise ``UserError`` if missing, unreadable or non-finite."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"mesh file not found: {path}")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:
+        raise UserError(f"cannot read mesh {path}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise UserError(f"{path} holds no triangle mesh")
+    if len(mesh.faces) == 0 and not allow_empty:
+        raise UserError(f"mesh {path} has no triangles")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise UserError(f"mesh {path} has NaN or infinite vertex coordinates")
+    return mesh
+
+
+def save_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
+             labels: np.ndarray | None = None) -> None:
+    """Write a binary PLY atomically; ``labels`` (one int per face) go in a ``part`` face property."""
+    mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
+    if labels is not None:
+        mesh.face_attributes["part"] = np.asarray(labels, np.int32)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary", include_attributes=True))
+
+
+def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+             part_names: tuple[str, ...], uv: np.ndarray | None = None) -> None:
+    """Write a GLB with one named node per part present (e.g. ``body``, ``handle``), atomically."""
+    vertices, faces, labels = np.asarray(vertices), np.asarray(faces), np.asarray(labels)
+    scene = trimesh.Scene()
+    for k, name in enumerate(part_names):
+        sel = faces[labels == k]
+        if len(sel) == 0:
+            continue
+        used, inv = np.unique(sel, return_inverse=True)
+        visual = None
+        if uv is not None:
+            visual = trimesh.visual.TextureVisuals(uv=np.asarray(uv)[used])
+        part = trimesh.Trimesh(vertices[used], inv.reshape(-1, 3), visual=visual, process=False)
+        scene.add_geometry(part, node_name=name, geom_name=name)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(scene.export(file_type="glb"))

@@ -1,0 +1,147 @@
+"""Views in the instant-ngp / nerfstudio ``transforms.json`` format (see DESIGN.md).
+
+Camera-to-world matrices use the OpenGL convention: the camera looks down its -z,
++y is up in the image, +x right; the principal point is the image centre.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from ipm.errors import UserError
+from ipm.io.atomic import atomic_path, write_json
+
+
+@dataclass(frozen=True)
+class Views:
+    """A set of calibrated views of one object, with their silhouettes."""
+
+    fov_x: float
+    """Horizontal field of view in radians."""
+    width: int
+    """Image width in pixels."""
+    height: int
+    """Image height in pixels."""
+    c2w: np.ndarray
+    """Camera-to-world matrices, shape (n, 4, 4), OpenGL convention."""
+    masks: np.ndarray | None = None
+    """Object masks, shape (n, height, width), float32 in {0, 1}; None if not loaded."""
+    frames: list[dict] = field(default_factory=list)
+    """The raw frame records (file paths relative to ``root``)."""
+    root: Path = Path(".")
+    """Directory that frame paths are relative to."""
+    semantic_labels: dict | None = None
+    """Optional label-name -> value map for semantic images."""
+
+    def __len__(self) -> int:
+        return len(self.c2w)
+
+    def subset(self, idx) -> "Views":
+        """The views with indices ``idx`` (a list), in that order."""
+        idx = list(idx)
+        masks = None if self.masks is None else self.masks[idx]
+        return Views(self.fov_x, self.width, self.height, self.c2w[idx], masks,
+                     [self.frames[i] for i in idx], self.root, self.semantic_labels)
+
+
+def _read_mask(path: Path, width: int, height: int) -> np.ndarray:
+    if not path.is_file():
+        raise UserError(f"mask file not found: {path}")
+    try:
+        img = np.asarray(Image.open(path))
+    except Exception as exc:
+        raise UserError(f"cannot read mask {path}: {exc}") from None
+    if img.ndim == 3:
+        img = img[..., 0] if img.shape[2] < 4 else img[..., 3] if img[..., :3].max() == 0 else img[..., 0]
+    if img.shape != (height, width):
+        raise UserError(
+            f"mask {path} is {img.shape[1]}x{img.shape[0]} px but transforms.json says {width}x{height}"
+        )
+    mask = (img > 127).astype(np.float32)
+    share = mask.mean()
+    if share == 0.0:
+        raise UserError(f"mask {path} is empty (no object pixel)")
+    if share == 1.0:
+        raise UserError(f"mask {path} is all object (no background pixel)")
+    return mask
+
+
+def load_views(path: str | os.PathLike, masks: bool = True) -> Views:
+    """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"views file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"malformed JSON in {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: top level must be an object")
+    try:
+        fov_x = float(data["camera_angle_x"])
+        width, height = int(data["w"]), int(data["h"])
+        frames = list(data["frames"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"{path}: missing or invalid field {exc}") from None
+    if not np.isfinite(fov_x) or not 0.0 < fov_x < np.pi:
+        raise UserError(f"{path}: camera_angle_x must be in (0, pi), got {fov_x}")
+    if width < 8 or height < 8:
+        raise UserError(f"{path}: image size {width}x{height} is too small")
+    if not frames:
+        raise UserError(f"{path}: no frames")
+    c2w = []
+    for i, fr in enumerate(frames):
+        try:
+            m = np.asarray(fr["transform_matrix"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError):
+            raise UserError(f"{path}: frame {i} has no valid transform_matrix") from None
+        if m.shape != (4, 4):
+            raise UserError(f"{path}: frame {i} transform_matrix must be 4x4, got {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise UserError(f"{path}: frame {i} transform_matrix contains NaN or infinity")
+        if abs(np.linalg.det(m[:3, :3])) < 1e-6:
+            raise UserError(f"{path}: frame {i} transform_matrix is singular")
+        c2w.append(m)
+    mask_arr = None
+    if masks:
+        mask_list = []
+        for i, fr in enumerate(frames):
+            if "mask_path" not in fr:
+                raise UserError(f"{path}: frame {i} has no mask_path")
+            mask_list.append(_read_mask(path.parent / fr["mask_path"], width, height))
+        mask_arr = np.stack(mask_list)
+    return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
+                 data.get("semantic_labels"))
+
+
+def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
+    """Write a boolean/float mask as an 8-bit PNG (255 = object), atomically."""
+    img = Image.fromarray(((np.asarray(mask) > 0.5) * 255).astype(np.uint8))
+    with atomic_path(path) as tmp:
+        img.save(tmp, format="PNG")
+
+
+def save_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
+    """Write a linear float RGB image in [0, 1] as an sRGB 8-bit PNG, atomically."""
+    x = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    img = Image.fromarray((srgb * 255 + 0.5).astype(np.uint8))
+    with atomic_path(path) as tmp:
+        img.save(tmp, format="PNG")
+
+
+def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,
+                frames: list[dict], semantic_labels: dict | None = None) -> None:
+    """Write a transforms.json; ``frames`` hold paths and (4, 4) ``transform_matrix`` arrays."""
+    data = {"camera_angle_x": float(fov_x), "w": int(width), "h": int(height)}
+    if semantic_labels:
+        data["semantic_labels"] = semantic_labels
+    data["frames"] = [
+        {**fr, "transform_matrix": np.asarray(fr["transform_matrix"]).tolist()} for fr in frames
+    ]
+    write_json(path, data)

@@ -1,0 +1,107 @@
+"""All benchmark numbers for one reconstruction against its reference, plus a preview strip."""
+
+import os
+import tempfile
+
+import numpy as np
+import trimesh
+from PIL import Image
+from scipy.spatial import cKDTree
+
+from .silhouette import bounding_sphere, check_reference, finite_part, silhouette_iou, silhouette_masks
+from .volume import volumetric_iou
+
+MIN_ANGLE_DEG = 5.0  # a triangle with a smaller interior angle is a sliver
+MIN_AREA_REL = 1e-10  # ... and one with area below this times r^2 is degenerate
+
+
+def chamfer(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_samples: int = 20000, seed: int = 0) -> dict:
+    """Chamfer-L2 (mean squared NN distance both ways, summed, / r^2) and mean NN distance (both ways averaged, / r).
+
+    Points are sampled uniformly by area with a fixed seed, so the numbers are reproducible
+    and a mesh against itself scores exactly 0. An empty reconstruction gives inf.
+    """
+    check_reference(reference)
+    mesh = finite_part(mesh)
+    if len(mesh.faces) == 0:
+        return {"chamfer_l2": float("inf"), "chamfer_l1": float("inf")}
+    radius = bounding_sphere(reference)[1]
+    a, _ = trimesh.sample.sample_surface(reference, n_samples, seed=seed)
+    b, _ = trimesh.sample.sample_surface(mesh, n_samples, seed=seed)
+    d_ab = cKDTree(b).query(a, workers=-1)[0]
+    d_ba = cKDTree(a).query(b, workers=-1)[0]
+    return {
+        "chamfer_l2": float((np.mean(d_ab**2) + np.mean(d_ba**2)) / radius**2),
+        "chamfer_l1": float((np.mean(d_ab) + np.mean(d_ba)) / 2.0 / radius),
+    }
+
+
+def triangle_quality(mesh: trimesh.Trimesh, radius: float) -> dict:
+    """Triangle count and share of malformed triangles (area < 1e-10 r^2 or smallest angle < 5 degrees)."""
+    n = len(mesh.faces)
+    if n == 0:
+        return {"n_triangles": 0, "malformed_share": 0.0}
+    tri = mesh.triangles
+    area = trimesh.triangles.area(tri)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        min_angle = np.degrees(trimesh.triangles.angles(tri).min(axis=1))
+    bad = (area < MIN_AREA_REL * radius**2) | ~(min_angle >= MIN_ANGLE_DEG)  # NaN angles count as bad
+    return {"n_triangles": int(n), "malformed_share": float(bad.mean())}
+
+
+def evaluate_meshes(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,
+                    grid: int = 128, seed: int = 0) -> dict:
+    """Every metric as a flat JSON-serialisable dict (silhouette per-view IoUs under ``iou_per_view``)."""
+    sil = silhouette_iou(reference, mesh, n_views, res)
+    sil["iou_per_view"] = sil.pop("per_view")
+    return {
+        **sil,
+        **volumetric_iou(reference, mesh, grid),
+        **chamfer(reference, mesh, seed=seed),
+        **triangle_quality(mesh, bounding_sphere(reference)[1]),
+    }
+
+
+def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n: int = 8, res: int = 128,
+                n_views: int = 64) -> None:
+    """Write a strip of ``n`` metric views: both masks white, reference only red, reconstruction only cyan.
+
+    Views are spread evenly over the ``n_views`` metric cameras; the file is written
+    atomically (temporary file in the same directory, then ``os.replace``).
+    """
+    ref, rec, _ = silhouette_masks(reference, mesh, n_views, res)
+    idx = np.linspace(0, n_views - 1, min(n, n_views)).round().astype(int)
+    ref, rec = ref[idx, ..., None], rec[idx, ..., None]
+    img = np.where(ref & rec, [255, 255, 255], np.where(ref, [220, 40, 40], np.where(rec, [40, 200, 220], 0)))
+    img = np.pad(img, ((0, 0), (2, 2), (2, 2), (0, 0)), constant_values=90)  # grey frame between views
+    strip = np.concatenate(list(img), axis=1).astype(np.uint8)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(suffix=".png", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            Image.fromarray(strip).save(f, format="PNG")
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600 files
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: int = 256, grid: int = 128,
+                   preview_path=None, seed: int = 0) -> dict:
+    """``ipm evaluate``: metrics of a mesh file against a reference file, written as JSON."""
+    from ipm.errors import UserError
+    from ipm.io import load_mesh, write_json
+
+    reference = load_mesh(reference_path)
+    mesh = load_mesh(mesh_path, allow_empty=True)
+    if n_views < 2 or res < 8 or grid < 8:
+        raise UserError("need --views >= 2, --res >= 8 and --grid >= 8")
+    try:
+        metrics = evaluate_meshes(reference, mesh, n_views=n_views, res=res, grid=grid, seed=seed)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    write_json(out_path, metrics)
+    if preview_path is not None:
+        preview_png(reference, mesh, str(preview_path))
+    return metrics

@@ -1,0 +1,1 @@
+"""Search algorithms over generator parameters (ask/tell or pure update functions)."""

@@ -1,0 +1,148 @@
+"""The paper's memetic algorithm: a GA over presets and discrete parameters with Adam inside.
+
+Per generation (DESIGN.md, the authors' settings are ``ipm.profiles.PROFILES["paper"]``):
+1. Adam local search; the generation's steps are shared by quality
+   ``q = (1 / (0.001 + err)) ** (1 + 0.2 it) * exp(-0.005 stall)`` (``stall``: steps since the
+   individual last improved by 1 %); a step whose loss exceeds ``reject_ratio`` times the
+   individual's best is undone and its rate halved (relative to the best, not the last loss,
+   so accepted small rises cannot ratchet the loss upwards); each individual keeps its best point;
+2. individuals in the same initialisation bin (topology key and yaw bin) are merged (best kept);
+3. the worst ``remove_share`` are removed; the population is refilled with children of
+   fitness-proportionate parents: a one-point crossover of the shape genes (pose from the
+   first parent), then each gene mutated with probability ``mutate_share / 10``, the yaw
+   jumping to a random bin with probability ``mutate_share``.
+``evaluate(z) -> (loss, grad)`` is the only link to rendering, so the algorithm is testable alone.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ipm.optim.adam import AdamState, adam_init, adam_update
+from ipm.profiles import DiffProfile
+
+
+@dataclass
+class Individual:
+    """One candidate: its vector, topology key, loss/gradient there, and its Adam state."""
+
+    z: np.ndarray
+    key: tuple
+    origin: str
+    loss: float = np.inf
+    grad: np.ndarray | None = None
+    lr: float = 0.05
+    adam: AdamState | None = None
+    stall: int = 0
+    best_loss: float = np.inf
+    best_z: np.ndarray | None = None
+
+    def remember(self) -> None:
+        """Record the current point if it is the best this individual has seen."""
+        if self.loss < self.best_loss:
+            if self.loss < 0.99 * self.best_loss:
+                self.stall = 0
+            self.best_loss, self.best_z = self.loss, self.z.copy()
+
+
+def log_quality(losses: np.ndarray, stalls: np.ndarray, it: int) -> np.ndarray:
+    """log q of the budget-sharing rule (logs avoid overflow of the growing exponent)."""
+    return -(1.0 + 0.2 * it) * np.log(0.001 + losses) - 0.005 * stalls
+
+
+def share_budget(budget: int, logq: np.ndarray) -> np.ndarray:
+    """Split ``budget`` steps proportionally to q (largest remainders first)."""
+    q = np.exp(logq - logq.max())
+    raw = budget * q / q.sum()
+    n = np.floor(raw).astype(int)
+    for i in np.argsort(-(raw - n))[: budget - n.sum()]:
+        n[i] += 1
+    return n
+
+
+def adam_steps(ind: Individual, n: int, evaluate: Callable, clip: Callable, reject_ratio: float,
+               on_eval: Callable) -> None:
+    """``n`` Adam steps on ``ind`` with step rejection (each step costs one evaluation)."""
+    if ind.grad is None:
+        ind.loss, ind.grad = evaluate(ind.z)
+        ind.remember()
+        on_eval(ind)
+        n -= 1
+    if ind.adam is None:
+        ind.adam = adam_init(ind.z)
+    for _ in range(max(n, 0)):
+        step, state = adam_update(ind.adam, ind.grad, ind.lr)
+        z_new = clip(ind.z + step)
+        loss, grad = evaluate(z_new)
+        ind.stall += 1
+        if not np.isfinite(loss) or loss > reject_ratio * ind.best_loss:
+            ind.lr *= 0.5
+        else:
+            ind.z, ind.loss, ind.grad, ind.adam = z_new, loss, grad, state
+            ind.remember()
+        on_eval(ind)
+
+
+def yaw_bin(z: np.ndarray, n_shape: int, bins: int) -> int:
+    return int(np.floor(np.mod(z[n_shape], 2 * np.pi) / (2 * np.pi) * bins)) % bins
+
+
+def merge_bins(pop: list[Individual], n_shape: int, bins: int) -> list[Individual]:
+    """Keep the best individual of each (topology key, yaw bin)."""
+    best: dict = {}
+    for ind in pop:
+        k = (ind.key, yaw_bin(ind.z, n_shape, bins))
+        if k not in best or ind.best_loss < best[k].best_loss:
+            best[k] = ind
+    return sorted(best.values(), key=lambda i: i.best_loss)
+
+
+def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Generator, n_shape: int,
+               profile: DiffProfile, discrete: np.ndarray, key_of: Callable, clip: Callable) -> Individual:
+    """Crossover (one point over the shape genes) and mutation of fitness-proportionate parents."""
+    a, b = rng.choice(len(parents), size=2, p=probs)
+    z = parents[a].best_z.copy()
+    cut = rng.integers(1, n_shape)
+    z[cut:n_shape] = parents[b].best_z[cut:n_shape]
+    genes = rng.random(n_shape) < profile.mutate_share / 10
+    z[:n_shape] = np.where(genes, z[:n_shape] + rng.normal(0.0, 0.15, n_shape), z[:n_shape])
+    flip = discrete & (rng.random(n_shape) < profile.mutate_share / 5)
+    z[:n_shape] = np.where(flip, 1.0 - np.round(z[:n_shape]), z[:n_shape])
+    if rng.random() < profile.mutate_share:
+        z[n_shape] = (rng.integers(profile.yaw_bins) + 0.5) / profile.yaw_bins * 2 * np.pi
+    z = clip(z)
+    return Individual(z, key_of(z), "child", lr=profile.lr)
+
+
+def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
+            n_shape: int, discrete: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
+            on_eval: Callable = lambda ind: None) -> Individual:
+    """Run the memetic stage from ``initial``; the returned individual's ``best_z`` is the answer."""
+    pop = list(initial)
+    best = None
+    for it in range(profile.ga_iterations):
+        for ind in pop:
+            if ind.grad is None:
+                adam_steps(ind, 1, evaluate, clip, profile.reject_ratio, on_eval)
+        losses = np.array([i.best_loss for i in pop])
+        stalls = np.array([i.stall for i in pop])
+        for ind, n in zip(pop, share_budget(profile.adam_per_iteration, log_quality(losses, stalls, it))):
+            if n:
+                adam_steps(ind, n, evaluate, clip, profile.reject_ratio, on_eval)
+        for ind in pop:
+            ind.key = key_of(ind.z)
+        pop = merge_bins(pop, n_shape, profile.yaw_bins)
+        if best is None or pop[0].best_loss < best.best_loss:
+            best = pop[0]
+        if it == profile.ga_iterations - 1:
+            break
+        keep = max(1, len(pop) - int(np.ceil(profile.remove_share * profile.population)))
+        pop = pop[:keep]
+        logq = log_quality(np.array([i.best_loss for i in pop]), np.array([i.stall for i in pop]), it)
+        probs = np.exp(logq - logq.max())
+        probs /= probs.sum()
+        while len(pop) < profile.population:
+            pop.append(make_child(pop[:keep], probs, rng, n_shape, profile, discrete, key_of, clip))
+    return best

@@ -1,0 +1,177 @@
+"""A reconstruction problem: a generator, the object pose, and the views to match.
+
+The optimised vector is ``z = [u, pose]``: ``u`` the generator parameters in the unit cube,
+``pose = (yaw, tilt_x, tilt_z, dx, dy, dz, log_scale)`` with angles in radians and the
+translation and scale relative to an *anchor* estimated from the first view's mask (the
+object stands on y = 0). All parts have similar step sizes, so one Adam rate serves.
+World vertices are ``s * R_y(yaw) R_x(tilt_x) R_z(tilt_z) v + t`` with
+``t = t0 + s0 * (dx, dy, dz)`` and ``s = s0 * exp(log_scale)``.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ipm.errors import UserError
+from ipm.generators.base import Generator, Mesh, vertex_normals
+from ipm.io.views import Views
+from ipm.render.cameras import pixel_ray
+
+POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
+POSE_LOWER = np.array([-np.inf, -0.35, -0.35, -1.5, -0.03, -1.5, -2.5])
+POSE_UPPER = np.array([np.inf, 0.35, 0.35, 1.5, 0.03, 1.5, 2.5])
+"""Pose bounds. ``dy`` stays near 0: the object stands on y = 0 (DESIGN.md), and this prior is
+what resolves the single-view ambiguity between distance along the ray and scale."""
+
+
+def estimate_anchor(views: Views) -> tuple[np.ndarray, float]:
+    """Ground position (x, 0, z) and height of the object from the first view's mask.
+
+    The lowest mask row is taken as the object's front contact with the ground plane y = 0;
+    the highest row gives the height along the vertical through that point; the mask width
+    gives the depth offset to the object's axis.
+    """
+    mask, c2w = views.masks[0], views.c2w[0]
+    h, w = mask.shape
+    rows = np.nonzero(mask.max(1) > 0.5)[0]
+    bottom, top = rows.max(), rows.min()
+    cols = np.nonzero(mask[bottom] > 0.5)[0]
+    origin, d = pixel_ray(cols.mean() + 0.5, bottom + 1.0, c2w, views.fov_x, w, h)
+    if d[1] > -1e-3:
+        raise UserError("cannot place the object: the lowest mask pixel looks at or above the horizon "
+                        "(the object must stand on the plane y = 0 below the camera)")
+    contact = origin + d * (-origin[1] / d[1])
+    # height: the top ray's closest approach to the vertical line through the contact point
+    o2, d2 = pixel_ray(cols.mean() + 0.5, float(top), c2w, views.fov_x, w, h)
+    horiz = np.array([d2[0], 0.0, d2[2]])
+    s = np.dot(contact - o2, horiz) / max(np.dot(horiz, horiz), 1e-9)
+    height = float(o2[1] + s * d2[1])
+    # width at mid height -> push the contact point back to the object's axis
+    mid = (top + bottom) // 2
+    mcols = np.nonzero(mask[mid] > 0.5)[0]
+    dist = np.linalg.norm(contact - origin)
+    f = 0.5 * w / np.tan(0.5 * views.fov_x)
+    half_width = 0.5 * (mcols.max() - mcols.min() + 1) * dist / f
+    back = contact - origin
+    back[1] = 0.0
+    back /= max(np.linalg.norm(back), 1e-9)
+    centre = contact + back * half_width
+    centre[1] = 0.0
+    height = float(np.clip(height, 0.2 * half_width, 20.0 * max(half_width, 1e-3)))
+    if not np.all(np.isfinite(centre)) or not np.isfinite(height) or height <= 0:
+        raise UserError("cannot estimate the object's position from the input mask")
+    return centre, height
+
+
+def _rotation(yaw, tx, tz):
+    cy, sy = jnp.cos(yaw), jnp.sin(yaw)
+    cx, sx = jnp.cos(tx), jnp.sin(tx)
+    cz, sz = jnp.cos(tz), jnp.sin(tz)
+    ry = jnp.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+    rx = jnp.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    rz = jnp.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+    return ry @ rx @ rz
+
+
+class Problem:
+    """Generator + pose anchor; builds the pure JAX map z -> world vertices per topology."""
+
+    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float):
+        self.generator = generator
+        self.spec = generator.spec
+        self.n_shape = len(self.spec)
+        self.dim = self.n_shape + len(POSE_NAMES)
+        self.anchor_t = np.asarray(anchor_t, np.float64)
+        self.anchor_s = float(anchor_s)
+        self.lower = np.concatenate([np.zeros(self.n_shape), POSE_LOWER])
+        self.upper = np.concatenate([np.ones(self.n_shape), POSE_UPPER])
+        groups = getattr(generator, "smooth_groups", ())
+        self._smooth = [np.arange(a, b) for a, b in groups]
+
+    def key(self, z: np.ndarray) -> tuple:
+        """Topology key (discrete parameter values) of ``z``."""
+        return self.generator.topology_key(self.spec.from_unit(z[: self.n_shape]))
+
+    def clip(self, z: np.ndarray) -> np.ndarray:
+        """Project ``z`` into bounds; yaw is wrapped into [0, 2 pi)."""
+        z = np.clip(np.asarray(z, np.float64), self.lower, self.upper)
+        z[self.n_shape] = np.mod(z[self.n_shape], 2 * np.pi)
+        return z
+
+    @lru_cache(maxsize=None)
+    def vertex_fn(self, key: tuple, lod: int):
+        """Pure JAX function z (dim,) -> flattened world vertices (3 V,), for one topology."""
+        positions = self.generator.positions_fn(key, lod)
+        spec, n = self.spec, self.n_shape
+        lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
+        discrete = jnp.asarray(spec.discrete)
+        disc_values = np.array(spec.default, np.float32)
+        for name, value in zip([nm for nm, d in zip(spec.names, spec.discrete) if d], key):
+            disc_values[spec.index[name]] = value
+        disc_values = jnp.asarray(disc_values)
+        t0 = jnp.asarray(self.anchor_t, jnp.float32)
+        s0 = float(self.anchor_s)
+
+        def fn(z):
+            u = jnp.clip(z[:n], 0.0, 1.0)
+            x = jnp.where(discrete, disc_values, lo + u * span)
+            v = positions(x)
+            p = z[n:]
+            rot = _rotation(p[0], p[1], p[2])
+            s = s0 * jnp.exp(p[6])
+            t = t0 + s0 * p[3:6]
+            return (s * v @ rot.T + t).ravel()
+
+        return jax.jit(fn)
+
+    def regulariser(self, z: np.ndarray, weight: float) -> tuple[float, np.ndarray]:
+        """Smoothness prior on the generator's control sequences: mean squared second differences."""
+        grad = np.zeros_like(z)
+        value = 0.0
+        for idx in self._smooth:
+            u = z[idx]
+            d2 = u[2:] - 2 * u[1:-1] + u[:-2]
+            value += weight * np.mean(d2**2)
+            g = 2 * weight * d2 / len(d2)
+            grad[idx[2:]] += g
+            grad[idx[1:-1]] -= 2 * g
+            grad[idx[:-2]] += g
+        return value, grad
+
+    def world_mesh(self, z: np.ndarray, lod: int) -> Mesh:
+        """The generated mesh in the world frame (numpy)."""
+        key = self.key(z)
+        topo = self.generator.topology(key, lod)
+        verts = np.asarray(self.vertex_fn(key, lod)(jnp.asarray(z, jnp.float32)), np.float64).reshape(-1, 3)
+        return Mesh(verts, topo.faces, vertex_normals(verts, topo.faces), topo.uv, topo.labels,
+                    self.generator.part_names)
+
+    def object_height(self, u: np.ndarray) -> float:
+        """Height of the generated object in its own frame (for the initial scale)."""
+        x = self.spec.from_unit(u)
+        key = self.generator.topology_key(x)
+        lod = min(self.generator.lods)
+        v = np.asarray(self.generator.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)))
+        return float(max(v[:, 1].max() - v[:, 1].min(), 1e-3))
+
+    def initial_z(self, u: np.ndarray, yaw: float) -> np.ndarray:
+        """``z`` for unit parameters ``u`` at ``yaw``, scaled so its height matches the anchor."""
+        pose = np.array([yaw, 0.0, 0.0, 0.0, 0.0, 0.0, -np.log(self.object_height(u))])
+        return self.clip(np.concatenate([u, pose]))
+
+    def decode(self, z: np.ndarray) -> dict:
+        """Parameters by name and the pose in world terms (for params.json)."""
+        n = self.n_shape
+        p = z[n:]
+        return {
+            "generator": self.generator.name,
+            "params": self.spec.as_dict(self.spec.from_unit(z[:n])),
+            "pose": {
+                "yaw": float(p[0]), "tilt_x": float(p[1]), "tilt_z": float(p[2]),
+                "translation": (self.anchor_t + self.anchor_s * p[3:6]).tolist(),
+                "scale": float(self.anchor_s * np.exp(p[6])),
+            },
+        }

@@ -1,0 +1,63 @@
+"""Named budgets for the differentiable path: ``smoke`` (CI), ``default``, ``paper`` (authors' settings)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from ipm.errors import UserError
+
+
+@dataclass(frozen=True)
+class DiffProfile:
+    """Settings of the memetic stage and the coarse-to-fine Adam refinement."""
+
+    population: int = 16
+    """Individuals in the memetic population (initialised from presets and random samples)."""
+    ga_iterations: int = 20
+    """Generations of the memetic algorithm."""
+    adam_per_iteration: int = 160
+    """Adam steps per generation, shared among individuals by quality."""
+    remove_share: float = 0.2
+    """Share of the worst individuals removed each generation."""
+    mutate_share: float = 0.5
+    """Share of the population replaced by mutants of good individuals each generation."""
+    random_share: float = 0.25
+    """Share of the initial population drawn at random instead of from presets."""
+    yaw_bins: int = 16
+    """Initialisation bins of the yaw angle; individuals in the same bin are merged."""
+    lr: float = 0.05
+    """Adam learning rate (unit-cube parameters; radians; object sizes)."""
+    reject_ratio: float = 1.2
+    """A step that raises the loss by more than this factor is undone and the rate halved."""
+    reg_weight: float = 0.33
+    """Weight of the parameter regulariser (smoothness of the handle's control sequences)."""
+    memetic_res: int = 128
+    """Render width of the memetic stage (pixels)."""
+    memetic_lod: int = 0
+    """Generator level of detail in the memetic stage."""
+    refine_res: tuple[int, ...] = (256, 512)
+    """Render widths of the refinement stages (doubling)."""
+    refine_iterations: tuple[int, ...] = (250, 250)
+    """Adam steps per refinement stage."""
+    refine_lod: int = 1
+    """Generator level of detail during refinement and for the output mesh."""
+    output_lod: int = 1
+    """Generator level of detail of the written mesh (level 2's 128-gon pole fans have 2.8 degree
+    angles, which the malformed-triangle metric would count)."""
+    spp: int = 4
+    """Samples per pixel of the silhouette renders."""
+
+
+PROFILES = {
+    "paper": DiffProfile(),
+    "default": DiffProfile(population=12, ga_iterations=8, adam_per_iteration=48, memetic_res=96,
+                           refine_res=(128, 256), refine_iterations=(100, 60)),
+    "smoke": DiffProfile(population=4, ga_iterations=2, adam_per_iteration=6, memetic_res=32,
+                         refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2),
+}
+
+
+def get_profile(name: str, **overrides) -> DiffProfile:
+    """The named profile with ``overrides`` applied; ``UserError`` for unknown names."""
+    if name not in PROFILES:
+        raise UserError(f"unknown profile {name!r} (known: {', '.join(PROFILES)})")
+    return replace(PROFILES[name], **overrides)

@@ -1,0 +1,69 @@
+"""Camera helpers: OpenGL camera-to-world matrices (transforms.json) and their Mitsuba sensors."""
+from __future__ import annotations
+
+import numpy as np
+
+# Mitsuba's camera looks down +z with +x to the left of the image; OpenGL's looks down -z
+# with +x to the right. Flipping both axes maps one frame onto the other.
+_GL_TO_MI = np.diag([-1.0, 1.0, -1.0, 1.0])
+
+
+def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """OpenGL camera-to-world matrix of a camera at ``eye`` looking at ``target``."""
+    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
+    back = eye - target
+    back /= np.linalg.norm(back)
+    if abs(np.dot(back, up / np.linalg.norm(up))) > 0.999:
+        up = np.array([0.0, 0.0, 1.0])
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(back, right)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, true_up, back, eye
+    return m
+
+
+def orbit_camera(center, distance: float, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """A camera on a sphere around ``center`` (azimuth about +y from +z, elevation above y = c_y)."""
+    az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
+    d = np.array([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])
+    return look_at(np.asarray(center) + distance * d, center)
+
+
+def mitsuba_to_world(c2w_gl: np.ndarray) -> np.ndarray:
+    """Mitsuba sensor ``to_world`` matrix for an OpenGL camera-to-world matrix."""
+    return np.asarray(c2w_gl, np.float64) @ _GL_TO_MI
+
+
+def sensor_dict(c2w_gl: np.ndarray, fov_x: float, width: int, height: int) -> dict:
+    """A Mitsuba perspective sensor (box filter, border sampling for moving silhouettes)."""
+    import mitsuba as mi
+
+    return {
+        "type": "perspective",
+        "fov": float(np.degrees(fov_x)),
+        "fov_axis": "x",
+        "near_clip": 1e-3,
+        "far_clip": 1e4,
+        "to_world": mi.ScalarTransform4f(mitsuba_to_world(c2w_gl).tolist()),
+        "film": {"type": "hdrfilm", "width": int(width), "height": int(height),
+                 "rfilter": {"type": "box"}, "pixel_format": "rgb", "sample_border": True},
+    }
+
+
+def project(points: np.ndarray, c2w_gl: np.ndarray, fov_x: float, width: int, height: int) -> np.ndarray:
+    """Pixel coordinates (x right, y down, pixel centres at +0.5) of world points, shape (N, 2)."""
+    w2c = np.linalg.inv(c2w_gl)
+    p = points @ w2c[:3, :3].T + w2c[:3, 3]
+    f = 0.5 * width / np.tan(0.5 * fov_x)
+    x = width / 2 + f * p[:, 0] / -p[:, 2]
+    y = height / 2 - f * p[:, 1] / -p[:, 2]
+    return np.stack([x, y], 1)
+
+
+def pixel_ray(px: float, py: float, c2w_gl: np.ndarray, fov_x: float, width: int, height: int):
+    """Origin and unit direction (world) of the ray through pixel position (px, py)."""
+    f = 0.5 * width / np.tan(0.5 * fov_x)
+    d_cam = np.array([(px - width / 2) / f, -(py - height / 2) / f, -1.0])
+    d = c2w_gl[:3, :3] @ d_cam
+    return c2w_gl[:3, 3].copy(), d / np.linalg.norm(d)

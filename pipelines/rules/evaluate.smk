@@ -1,0 +1,29 @@
+rule evaluate:
+    input:
+        reference=rules.synth.output.reference,
+        mesh="results/reconstruct/{row}/{case}/mesh.ply",
+        timing="results/reconstruct/{row}/{case}/timing.json",
+    output:
+        metrics="results/evaluate/{row}/{case}/metrics.json",
+        row="results/evaluate/{row}/{case}/row.json",
+        preview=report(
+            "results/evaluate/{row}/{case}/preview.png",
+            caption="../report/preview.rst",
+            category="Silhouettes",
+            subcategory="{case}",
+            labels={"case": "{case}", "row": "{row}"},
+        ),
+    log:
+        "logs/evaluate/{row}/{case}.log",
+    params:
+        row=row_info,
+        n_views=config["evaluate"]["views"],
+        res=config["evaluate"]["res"],
+        grid=config["evaluate"]["grid"],
+    threads: 1
+    resources:
+        mem_mb=3000,
+    conda:
+        "../envs/ipm.yaml"
+    script:
+        "../scripts/evaluate.py"

@@ -1,0 +1,4 @@
+from ipm.workflow import synth_step
+
+synth_step(case=snakemake.wildcards.case, transforms=snakemake.output.transforms, views=snakemake.params.views,
+           res=snakemake.params.res, spp=snakemake.params.spp, threads=snakemake.threads, log=snakemake.log[0])

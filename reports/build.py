@@ -1,0 +1,102 @@
+"""The HTML report: Table 1, all metrics, IoU bars, per-case pictures and optimisation traces.
+
+Self-contained (images inlined as base64) so the page can be mailed or archived as one file.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import os
+import platform
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from ipm.io.atomic import atomic_path  # noqa: E402
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
+th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}img{max-width:100%}
+.case{border-top:2px solid #ddd;margin-top:2em}.note{color:#666;font-size:0.9em}"""
+
+
+def _img(path: Path | None = None, fig=None) -> str:
+    if fig is not None:
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+        plt.close(fig)
+        data = buf.getvalue()
+    elif path is not None and path.exists():
+        data = path.read_bytes()
+    else:
+        return '<span class="note">(missing)</span>'
+    return f'<img src="data:image/png;base64,{base64.b64encode(data).decode()}">'
+
+
+def _iou_bars(df: pd.DataFrame):
+    wide = df.pivot_table(index="case", columns="label", values="iou_mean", aggfunc="first")
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    wide.plot.bar(ax=ax, rot=0, width=0.8)
+    lo = max(0.0, float(wide.min().min()) - 0.05)
+    ax.set_ylim(lo, 1.0)
+    ax.set_ylabel("64-view silhouette IoU")
+    ax.legend(fontsize=7, loc="lower right")
+    ax.grid(axis="y", alpha=0.3)
+    return fig
+
+
+def _trace_plot(trace: pd.DataFrame):
+    fig, ax = plt.subplots(figsize=(6, 2.6))
+    for (stage, res), part in trace.groupby(["stage", "res"], sort=False):
+        ax.plot(part["eval"], part["loss"], ".", ms=2, label=f"{stage} {res}px")
+    ax.set_yscale("log")
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("silhouette loss")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: str, config: dict) -> None:
+    """Write ``out_html`` from the table and the per-case result folders."""
+    df = pd.read_csv(table_csv)
+    wide = pd.read_csv(wide_csv, index_col=0)
+    results = Path(table_csv).parent
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>IPM-Bench report</title>"
+             f"<style>{_CSS}</style></head><body><h1>IPM-Bench report</h1>",
+             f"<p class='note'>profile <b>{html.escape(str(config.get('profile')))}</b>, seed {config.get('seed')}, "
+             f"cases {', '.join(config.get('cases', []))}; machine {html.escape(platform.platform())}, "
+             f"{os.cpu_count()} CPUs. IoU: mean over {config.get('evaluate', {}).get('views')} Fibonacci-sphere "
+             f"views (DESIGN.md); reference lines are computed from the reference itself.</p>",
+             "<h2>Table 1: mean silhouette IoU</h2>", wide.to_html(float_format="%.3f", na_rep="-"),
+             _img(fig=_iou_bars(df)), "<h2>All metrics</h2>",
+             df.drop(columns=["row", "kind"]).to_html(index=False, float_format="%.4f", na_rep="-")]
+    for case in config.get("cases", []):
+        parts.append(f"<div class='case'><h2>{html.escape(case)}</h2>")
+        synth = results / "synth" / case
+        parts.append("<p>input view and its mask</p>" + _img(synth / "rgb" / "000.png") + " "
+                     + _img(synth / "masks" / "000.png"))
+        for row in df[df["case"] == case].itertuples():
+            folder = results / "evaluate" / row.row / case
+            parts.append(f"<h3>{html.escape(row.label)}: IoU {row.iou_mean:.3f}, volumetric IoU {row.viou:.3f}</h3>")
+            parts.append(_img(folder / "preview.png"))
+            recon = results / "reconstruct" / row.row / case
+            if (recon / "trace.csv").exists():
+                parts.append(_img(fig=_trace_plot(pd.read_csv(recon / "trace.csv"))))
+            if (recon / "params.json").exists():
+                info = json.loads((recon / "params.json").read_text())
+                pose = {k: (round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v])
+                        for k, v in info["pose"].items()}
+                handle = info["params"].get("has_handle")
+                parts.append(f"<p class='note'>pose {html.escape(json.dumps(pose))}; has_handle {handle}; "
+                             f"{info['evaluations']} evaluations, final loss {info['final_loss']:.5f}</p>")
+        parts.append("</div>")
+    parts.append("</body></html>")
+    with atomic_path(out_html) as tmp:
+        tmp.write_text("\n".join(parts))

@@ -1,0 +1,76 @@
+"""The command line: bad input gives one clear line and a non-zero exit, and no output directory."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def ipm(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "ipm.cli", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=300)
+
+
+def _one_line_error(res):
+    assert res.returncode != 0
+    lines = [ln for ln in res.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    return lines[0]
+
+
+def test_unknown_generator(tmp_path, tiny_case):
+    out = tmp_path / "out"
+    res = ipm("reconstruct", "--generator", "teapot", "--views", str(tiny_case / "transforms.json"),
+              "--out", str(out), "--profile", "smoke")
+    assert "unknown generator 'teapot'" in _one_line_error(res)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("problem", ["missing", "malformed", "nan", "bad_profile", "wrong_size"])
+def test_bad_reconstruct_input(tmp_path, tiny_case, problem):
+    views = tmp_path / "transforms.json"
+    data = json.loads((tiny_case / "transforms.json").read_text())
+    for fr in data["frames"]:
+        fr["mask_path"] = str(tiny_case / fr["mask_path"])
+    profile = "smoke"
+    if problem == "malformed":
+        views.write_text("{")
+    elif problem == "nan":
+        data["frames"][0]["transform_matrix"][0][0] = float("nan")
+        views.write_text(json.dumps(data))
+    elif problem == "wrong_size":
+        data["w"] = 80
+        views.write_text(json.dumps(data))
+    elif problem == "bad_profile":
+        views.write_text(json.dumps(data))
+        profile = "turbo"
+    out = tmp_path / "out"
+    res = ipm("reconstruct", "--generator", "dishes", "--views", str(views), "--out", str(out), "--profile", profile)
+    line = _one_line_error(res)
+    assert line.startswith("ipm reconstruct: error:")
+    assert not out.exists()
+
+
+def test_evaluate_errors(tmp_path, tiny_case):
+    res = ipm("evaluate", "--reference", str(tmp_path / "none.ply"), "--mesh", str(tiny_case / "reference.ply"),
+              "--out", str(tmp_path / "m.json"))
+    assert "mesh file not found" in _one_line_error(res)
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_unknown_case(tmp_path):
+    res = ipm("synth", "--case", "nope", "--out", str(tmp_path / "s"))
+    assert "unknown case 'nope'" in _one_line_error(res)
+    assert not (tmp_path / "s").exists()
+
+
+def test_evaluate_and_reference_line_commands(tmp_path, tiny_case):
+    ref = str(tiny_case / "reference.ply")
+    assert ipm("reference-line", "convex_hull", "--reference", ref, "--out", str(tmp_path / "hull")).returncode == 0
+    res = ipm("evaluate", "--reference", ref, "--mesh", str(tmp_path / "hull" / "mesh.ply"),
+              "--out", str(tmp_path / "m.json"), "--views", "16", "--res", "64", "--grid", "32")
+    assert res.returncode == 0, res.stderr
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert 0.8 < m["iou_mean"] < 1.0 and m["viou"] < 1.0  # the hull fills the cup and its handle hole

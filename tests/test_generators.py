@@ -1,0 +1,103 @@
+"""Generator properties: closed, consistently oriented, finite meshes; Jacobian vs finite differences."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+
+from ipm.errors import UserError
+from ipm.generators import GENERATORS, get_generator
+
+NAMES = GENERATORS.names()
+
+
+def _check_closed(gen, x, lod):
+    m = gen.mesh(x, lod)
+    assert np.all(np.isfinite(m.vertices)) and np.all(np.isfinite(m.normals))
+    assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
+    assert len(m.labels) == len(m.faces) and len(m.uv) == len(m.vertices)
+    assert set(np.unique(m.labels)) <= set(range(len(m.part_names)))
+    t = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    assert t.is_watertight and t.is_winding_consistent
+    for part in t.split(only_watertight=False):
+        assert part.volume > 0  # outward orientation: Mitsuba's area emitters are one-sided
+    return m
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_presets_are_closed_at_every_lod(name):
+    gen = get_generator(name)
+    assert gen.presets
+    for x in gen.presets.values():
+        assert np.all(x >= gen.spec.lower) and np.all(x <= gen.spec.upper)
+        for lod in gen.lods:
+            _check_closed(gen, x, lod)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_random_parameters_give_closed_meshes(name, rng):
+    gen = get_generator(name)
+    for _ in range(8):
+        _check_closed(gen, gen.spec.from_unit(rng.random(len(gen.spec))), min(gen.lods))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_level_of_detail_adds_triangles(name):
+    gen = get_generator(name)
+    x = next(iter(gen.presets.values()))
+    counts = [len(gen.mesh(x, lod).faces) for lod in gen.lods]
+    assert counts == sorted(counts) and counts[0] < counts[-1]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_jacobian_matches_central_differences(name, rng):
+    gen = get_generator(name)
+    x = next(iter(gen.presets.values())).astype(np.float64)
+    key = gen.topology_key(x)
+    f = gen.positions_fn(key, min(gen.lods))
+    jac = np.asarray(jax.jacfwd(f)(jnp.asarray(x, jnp.float32)))  # (V, 3, n)
+    span = gen.spec.upper - gen.spec.lower
+    cont = np.nonzero(~gen.spec.discrete)[0]
+    for i in rng.choice(cont, size=min(12, len(cont)), replace=False):
+        h = 1e-3 * span[i]
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        fd = (np.asarray(f(jnp.asarray(xp, jnp.float32)), np.float64)
+              - np.asarray(f(jnp.asarray(xm, jnp.float32)), np.float64)) / (2 * h)
+        scale = max(np.abs(fd).max(), 1e-3)
+        assert np.abs(jac[..., i] - fd).max() < 2e-2 * scale, gen.spec.names[i]
+    for i in np.nonzero(gen.spec.discrete)[0]:
+        assert np.all(jac[..., i] == 0.0)  # discrete parameters have zero derivative
+
+
+def test_dishes_follows_the_authors_layout():
+    gen = get_generator("dishes")
+    assert len(gen.spec) == 53
+    assert gen.spec.names[:9] == tuple(f"profile_{i}" for i in range(9))
+    assert list(gen.spec.discrete.nonzero()[0]) == [gen.spec.index["has_handle"]]
+    assert set(gen.presets) == {"mug", "tea_cup", "bowl", "jar"}
+    mug, bowl = gen.mesh(gen.presets["mug"], 0), gen.mesh(gen.presets["bowl"], 0)
+    assert set(np.unique(mug.labels)) == {0, 1} and set(np.unique(bowl.labels)) == {0}
+    assert mug.part_names == ("body", "handle")
+    assert abs(mug.vertices[:, 1].min()) < 1e-6  # stands on y = 0
+
+
+def test_spec_round_trip_and_errors():
+    spec = get_generator("dishes").spec
+    x = spec.default
+    np.testing.assert_allclose(spec.from_unit(spec.to_unit(x)), x, atol=1e-12)
+    assert spec.from_dict(spec.as_dict(x)).tolist() == x.tolist()
+    with pytest.raises(UserError, match="unknown parameter"):
+        spec.from_dict({"nope": 1.0})
+    with pytest.raises(UserError, match="not finite"):
+        spec.from_dict({"y_scale": float("nan")})
+    with pytest.raises(UserError, match="unknown generator"):
+        get_generator("teapot")
+
+
+def test_registry_refuses_duplicates():
+    with pytest.raises(KeyError, match="already registered"):
+        GENERATORS.register("dishes")(object)

@@ -1,0 +1,133 @@
+"""Analytic checks of the evaluation metrics (ipm.metrics)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from ipm.metrics import (
+    chamfer, evaluate_meshes, fibonacci_cameras, occupancy, preview_png, raycast_masks,
+    silhouette_iou, triangle_quality, volumetric_iou,
+)
+
+
+def sphere(x=0.0):
+    return trimesh.creation.icosphere(subdivisions=4, radius=1.0).apply_translation([x, 0.0, 0.0])
+
+
+def box(x=0.0):
+    return trimesh.creation.box(extents=[1.0, 1.0, 1.0]).apply_translation([x, 0.0, 0.0])
+
+
+def lens_iou(d, r=1.0):
+    """IoU of two balls of radius r whose centres are d apart (lens volume formula)."""
+    lens = math.pi * (4 * r + d) * (2 * r - d) ** 2 / 12
+    return lens / (2 * 4 / 3 * math.pi * r**3 - lens)
+
+
+def test_mesh_against_itself_is_perfect():
+    m = sphere()
+    out = evaluate_meshes(m, m, n_views=16, res=64, grid=64)
+    assert out["iou_mean"] == 1.0 and out["iou_min"] == 1.0 and out["iou_std"] == 0.0
+    assert out["viou"] == 1.0
+    assert out["chamfer_l2"] < 1e-4 and out["chamfer_l1"] < 1e-2
+    assert out["recon_watertight"] and out["reference_watertight"]
+    assert out["n_triangles"] == len(m.faces) and out["malformed_share"] == 0.0
+    json.dumps(out)  # plain Python types only
+
+
+@pytest.mark.parametrize("d", [0.5, 1.0, 1.5])
+def test_two_spheres_volumetric_iou_matches_lens_formula(d):
+    assert volumetric_iou(sphere(), sphere(d), grid=96)["viou"] == pytest.approx(lens_iou(d), abs=0.02)
+
+
+def test_two_spheres_silhouette_iou_in_range_and_decreasing():
+    ious = [silhouette_iou(sphere(), sphere(d), n_views=32, res=64)["iou_mean"] for d in (0.5, 1.0)]
+    assert 0.0 < ious[1] < ious[0] < 1.0
+
+
+@pytest.mark.parametrize("t", [0.1, 0.3])
+def test_translated_box_volumetric_iou(t):
+    assert volumetric_iou(box(), box(t), grid=64)["viou"] == pytest.approx((1 - t) / (1 + t), abs=0.02)
+
+
+def test_translated_box_silhouette_iou_decreases():
+    ious = [silhouette_iou(box(), box(t), n_views=32, res=64)["iou_mean"] for t in (0.0, 0.1, 0.3)]
+    assert ious[0] == 1.0 and ious[0] > ious[1] > ious[2] > 0.0
+
+
+def test_occupancy_of_intersecting_components_is_their_union():
+    m = trimesh.util.concatenate([box(), box(0.5)])
+    pts = np.array([[0.25, 0.01, 0.02], [-0.4, 0.0, 0.0], [0.9, 0.0, 0.0], [2.0, 0.0, 0.0], [0.25, 0.7, 0.0]])
+    assert occupancy(m, pts).tolist() == [True, True, True, False, False]
+
+
+def test_fibonacci_cameras_look_at_centre_from_fixed_distance():
+    centre, radius = np.array([1.0, 2.0, -3.0]), 0.7
+    cams = fibonacci_cameras(centre, radius, n_views=64, fov_deg=40.0)
+    assert len(cams) == 64
+    dist = 1.25 * radius / math.sin(math.radians(20.0))
+    pos = np.array([c[:3, 3] for c in cams])
+    assert np.allclose(np.linalg.norm(pos - centre, axis=1), dist)
+    to_centre = (centre - pos) / dist
+    assert np.allclose([-c[:3, 2] for c in cams], to_centre)
+    assert all(np.allclose(c[:3, :3].T @ c[:3, :3], np.eye(3)) and np.linalg.det(c[:3, :3]) > 0 for c in cams)
+    assert all(c[1, 1] >= 0 for c in cams)  # image up never points down in the world
+    assert abs(int((pos[:, 1] > centre[1]).sum()) - 32) <= 2
+
+
+def test_raycast_mask_orientation():
+    cam = np.eye(4)
+    cam[2, 3] = 5.0  # at +z looking down -z, world +y up
+    target = trimesh.creation.box(extents=[0.5, 0.5, 0.5]).apply_translation([1.0, 1.0, 0.0])
+    mask = raycast_masks(target, [cam], res=64)[0]
+    assert mask.sum() > 0 and mask[:32, 32:].sum() == mask.sum()  # top-right quadrant only
+
+
+def test_triangle_quality_flags_sliver_and_degenerate():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.8, 0], [0.5, 0.01, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0]], float)
+    f = np.array([[0, 1, 2], [0, 1, 3], [4, 5, 6], [0, 2, 1]])  # good, sliver (~1.1 deg), zero area, good
+    out = triangle_quality(trimesh.Trimesh(v, f, process=False), radius=1.0)
+    assert out == {"n_triangles": 4, "malformed_share": 0.5}
+
+
+def test_empty_reconstruction():
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=int))
+    out = evaluate_meshes(sphere(), empty, n_views=8, res=32, grid=32)
+    assert out["iou_per_view"] == [0.0] * 8
+    assert out["iou_mean"] == 0.0 and out["viou"] == 0.0 and not out["recon_watertight"]
+    assert out["chamfer_l2"] == float("inf") and out["chamfer_l1"] == float("inf")
+    assert out["n_triangles"] == 0
+    assert chamfer(sphere(), empty)["chamfer_l2"] == float("inf")
+
+
+def test_invalid_reference_raises():
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=int))
+    with pytest.raises(ValueError, match="empty"):
+        evaluate_meshes(empty, sphere(), n_views=4, res=16, grid=16)
+    bad = sphere()
+    bad.vertices[0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        silhouette_iou(bad, sphere(), n_views=4, res=16)
+
+
+def test_preview_png_written(tmp_path):
+    path = tmp_path / "preview.png"
+    preview_png(sphere(), sphere(0.5), str(path), n=4, res=32)
+    img = np.asarray(Image.open(path))
+    assert img.shape == (36, 4 * 36, 3)
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left behind
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    assert {(255, 255, 255), (220, 40, 40), (40, 200, 220)} <= colours
+
+
+def test_touching_closed_parts_stay_watertight():
+    """Two closed boxes sharing a corner vertex position: watertight as given, not glued by welding."""
+    a = trimesh.creation.box(extents=[1, 1, 1])
+    b = trimesh.creation.box(extents=[1, 1, 1]).apply_translation([1, 1, 1])
+    both = trimesh.util.concatenate([a, b])
+    out = volumetric_iou(both, both, grid=32)
+    assert out["reference_watertight"] and out["recon_watertight"] and out["viou"] == 1.0
