@@ -89,7 +89,7 @@ class Problem:
         self.lower = np.concatenate([np.zeros(self.n_shape), POSE_LOWER])
         self.upper = np.concatenate([np.ones(self.n_shape), POSE_UPPER])
         groups = getattr(generator, "smooth_groups", ())
-        self._smooth = [np.arange(a, b) for a, b in groups]
+        self._smooth = [(np.arange(a, b), w) for a, b, w in groups]
 
     def key(self, z: np.ndarray) -> tuple:
         """Topology key (discrete parameter values) of ``z``."""
@@ -131,11 +131,11 @@ class Problem:
         """Smoothness prior on the generator's control sequences: mean squared second differences."""
         grad = np.zeros_like(z)
         value = 0.0
-        for idx in self._smooth:
+        for idx, w in self._smooth:
             u = z[idx]
             d2 = u[2:] - 2 * u[1:-1] + u[:-2]
-            value += weight * np.mean(d2**2)
-            g = 2 * weight * d2 / len(d2)
+            value += weight * w * np.mean(d2**2)
+            g = 2 * weight * w * d2 / len(d2)
             grad[idx[2:]] += g
             grad[idx[1:-1]] -= 2 * g
             grad[idx[:-2]] += g

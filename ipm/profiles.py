@@ -43,6 +43,9 @@ class DiffProfile:
     output_lod: int = 1
     """Generator level of detail of the written mesh (level 2's 128-gon pole fans have 2.8 degree
     angles, which the malformed-triangle metric would count)."""
+    occam_tolerance: float = 0.03
+    """A discrete parameter goes to its simplest value (no handle) if that raises the final loss
+    by at most this share: one view cannot tell a handle hidden behind the body from none."""
     spp: int = 4
     """Samples per pixel of the silhouette renders."""
 

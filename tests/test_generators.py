@@ -101,3 +101,18 @@ def test_spec_round_trip_and_errors():
 def test_registry_refuses_duplicates():
     with pytest.raises(KeyError, match="already registered"):
         GENERATORS.register("dishes")(object)
+
+
+def test_smoothness_prior_gradient_matches_finite_differences(rng):
+    from ipm.problem import Problem
+
+    problem = Problem(get_generator("dishes"), np.zeros(3), 1.0)
+    z = problem.clip(np.concatenate([rng.random(problem.n_shape), [0.3, 0, 0, 0, 0, 0, 0]]))
+    value, grad = problem.regulariser(z, 0.33)
+    assert value > 0
+    for i in (0, 4, 8, 13, 20, 40, 52):
+        e = np.zeros_like(z)
+        e[i] = 1e-6
+        fd = (problem.regulariser(z + e, 0.33)[0] - problem.regulariser(z - e, 0.33)[0]) / 2e-6
+        assert grad[i] == pytest.approx(fd, rel=1e-4, abs=1e-9)
+    assert grad[9] == 0.0  # y_scale is not in a smoothed sequence

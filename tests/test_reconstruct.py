@@ -40,7 +40,7 @@ def test_diff_reconstruction_writes_everything(tmp_path, tiny_case):
     assert list(params["params"]) == list(gen.spec.names) and params == json.loads(json.dumps(info))
     assert set(params["pose"]) == {"yaw", "tilt_x", "tilt_z", "translation", "scale"}
     trace = pd.read_csv(out / "trace.csv")
-    assert len(trace) == params["evaluations"] and set(trace["stage"]) == {"memetic", "refine"}
+    assert len(trace) == params["evaluations"] and {"memetic", "refine"} <= set(trace["stage"])
     assert trace["best"].iloc[-1] <= trace["loss"].iloc[0]  # the search improved on its start
     mesh = load_mesh(out / "mesh.ply")
     assert mesh.is_watertight
@@ -67,3 +67,26 @@ def test_reconstruction_is_deterministic(tmp_path, tiny_case):
     finally:
         dr.set_thread_count(2)
     assert a["params"] == b["params"] and a["pose"] == b["pose"]
+
+
+def test_simplify_drops_a_hidden_handle_and_keeps_a_visible_one(mitsuba_cpu):
+    """Occam step: a handle behind the body (camera on -x) is dropped; seen from the side it stays."""
+    from ipm.io.views import Views
+    from ipm.methods.diff import Objective, simplify
+    from ipm.profiles import get_profile
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.silhouette import SilhouetteRenderer
+
+    gen = get_generator("dishes")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.0)
+    no_handle = z.copy()
+    no_handle[gen.spec.index["has_handle"]] = 0.0
+    for azimuth, kept in ((-90.0, False), (0.0, True)):
+        cam = orbit_camera([0, 0.5, 0], 3.0, azimuth, 10.0)[None]
+        truth = problem.world_mesh(no_handle if not kept else z, 0)
+        masks = SilhouetteRenderer(cam, 0.7, 64, 64, spp=16).render(truth.vertices, truth.faces) > 0.5
+        views = Views(0.7, 64, 64, cam, masks.astype(np.float32))
+        objective = Objective(problem, views, 64, 0, get_profile("smoke"))
+        out = simplify(problem, objective, z.copy(), tolerance=0.03)
+        assert (problem.key(out) == (1,)) == kept

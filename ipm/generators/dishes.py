@@ -63,8 +63,12 @@ class Dishes(Generator):
     spec = make_spec(_SPEC_ROWS)
     part_names = ("body", "handle")
     lods = tuple(_LOD)
-    smooth_groups = ((13, 13 + N_HANDLE), (13 + N_HANDLE, 13 + 2 * N_HANDLE))
-    """Index ranges of the handle's radius and thickness sequences (smoothness prior)."""
+    simplest = {"has_handle": 0.0}
+    """Discrete values to prefer when the views cannot tell (ipm.methods.diff.simplify)."""
+    smooth_groups = ((0, N_PROFILE, 0.05), (13, 13 + N_HANDLE, 1.0), (13 + N_HANDLE, 13 + 2 * N_HANDLE, 1.0))
+    """(start, stop, relative weight) of the control sequences under the smoothness prior: the
+    handle's radii and thickness (one view barely constrains them), and lightly the profile (a
+    sudden inward kink at the rim would fake an open rim seen from above with a closed lid)."""
     presets = {
         "mug": _preset(spec, [3.8, 3.9, 3.95, 4.0, 4.0, 4.0, 4.0, 4.0, 4.0], 1.0, (0.05, 0.5, 0.3)),
         "tea_cup": _preset(spec, [2.2, 2.6, 3.1, 3.6, 4.0, 4.4, 4.7, 4.9, 5.0], 0.55, (0.035, 0.55, 0.2)),

@@ -46,11 +46,12 @@ class Objective:
         self.renderer = SilhouetteRenderer(views.c2w, views.fov_x, width, h, profile.spp)
         self.calls = 0
 
-    def __call__(self, z: np.ndarray) -> tuple[float, np.ndarray]:
+    def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
         key = self.problem.key(z)
         topo = self.problem.generator.topology(key, self.lod)
         loss, grad = self.renderer.loss_and_grad(self.problem.vertex_fn(key, self.lod), z, topo.faces,
-                                                 len(topo.uv), self.targets, seed=self.calls)
+                                                 len(topo.uv), self.targets,
+                                                 seed=self.calls if seed is None else seed)
         self.calls += 1
         reg, reg_grad = self.problem.regulariser(z, self.reg)
         return loss + reg, grad + reg_grad
@@ -72,6 +73,26 @@ def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Ge
         z = problem.initial_z(u, yaw)
         pop.append(Individual(z, problem.key(z), name, lr=profile.lr))
     return pop
+
+
+def simplify(problem: Problem, objective: Objective, z: np.ndarray, tolerance: float,
+             record=lambda name, loss: None) -> np.ndarray:
+    """Occam step: set each discrete parameter to its simplest value (``generator.simplest``)
+    when that raises the loss by at most ``tolerance`` (relative): a part the views do not
+    support (a handle hidden behind the body) is dropped. Both sides use the same render seeds."""
+    spec, seeds = problem.spec, (10_001, 10_002)
+    for name, value in getattr(problem.generator, "simplest", {}).items():
+        i = spec.index[name]
+        if spec.from_unit(z[: problem.n_shape])[i] == value:
+            continue
+        alt = z.copy()
+        alt[i] = (value - spec.lower[i]) / (spec.upper[i] - spec.lower[i])
+        loss = np.mean([objective(z, seed=s)[0] for s in seeds])
+        loss_alt = np.mean([objective(alt, seed=s)[0] for s in seeds])
+        record(f"{name}={value:g}", loss_alt)
+        if loss_alt <= (1.0 + tolerance) * loss:
+            z = alt
+    return z
 
 
 def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int = 0,
@@ -102,6 +123,10 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
         adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
         z = ind.best_z
+    state["stage"] = "simplify"
+    z = simplify(problem, objective, z, profile.occam_tolerance,
+                 lambda name, loss: rows.append(("simplify", state["res"], len(rows), name, loss,
+                                                 min(state["best"], loss), time.perf_counter() - t0)))
     bar.close()
     trace = pd.DataFrame(rows, columns=["stage", "res", "eval", "origin", "loss", "best", "seconds"])
     return z, trace

@@ -1,12 +1,11 @@
 """All benchmark numbers for one reconstruction against its reference, plus a preview strip."""
 
-import os
-import tempfile
-
 import numpy as np
 import trimesh
 from PIL import Image
 from scipy.spatial import cKDTree
+
+from ipm.io.atomic import atomic_path
 
 from .silhouette import bounding_sphere, check_reference, finite_part, silhouette_iou, silhouette_masks
 from .volume import volumetric_iou
@@ -66,8 +65,7 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
                 n_views: int = 64) -> None:
     """Write a strip of ``n`` metric views: both masks white, reference only red, reconstruction only cyan.
 
-    Views are spread evenly over the ``n_views`` metric cameras; the file is written
-    atomically (temporary file in the same directory, then ``os.replace``).
+    Views are spread evenly over the ``n_views`` metric cameras; the file is written atomically.
     """
     ref, rec, _ = silhouette_masks(reference, mesh, n_views, res)
     idx = np.linspace(0, n_views - 1, min(n, n_views)).round().astype(int)
@@ -75,16 +73,8 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
     img = np.where(ref & rec, [255, 255, 255], np.where(ref, [220, 40, 40], np.where(rec, [40, 200, 220], 0)))
     img = np.pad(img, ((0, 0), (2, 2), (2, 2), (0, 0)), constant_values=90)  # grey frame between views
     strip = np.concatenate(list(img), axis=1).astype(np.uint8)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            Image.fromarray(strip).save(f, format="PNG")
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600 files
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        Image.fromarray(strip).save(tmp, format="PNG")
 
 
 def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: int = 256, grid: int = 128,

@@ -1,0 +1,86 @@
+"""Benchmark: silhouette iteration time (render + backward) per resolution, and whole single-view
+reconstructions of the cup cases with their 64-view IoU.
+
+    .venv/bin/python bench/reconstruct_speed.py [--device cpu|cuda] [--threads 2] [--profile default]
+        [--cases cup_1 cup_2 cup_ext] [--out results/bench/reconstruct_speed.json]
+
+Prints a table and writes the numbers as JSON (with the machine's description). Targets
+(issue 2): a default-profile cup reconstruction within 5 minutes on 2 CPU cores.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--profile", default="default")
+    ap.add_argument("--cases", nargs="+", default=["cup_1", "cup_2", "cup_ext"])
+    ap.add_argument("--resolutions", nargs="+", type=int, default=[128, 256, 512])
+    ap.add_argument("--iterations", type=int, default=20, help="timed iterations per resolution")
+    ap.add_argument("--out", default="results/bench/reconstruct_speed.json")
+    args = ap.parse_args()
+
+    from ipm.runtime import configure_threads, set_mitsuba_variant
+
+    configure_threads(args.threads, args.device)
+    set_mitsuba_variant(args.device, args.threads)
+    import numpy as np
+
+    from ipm.generators import get_generator
+    from ipm.io import load_mesh, load_views
+    from ipm.methods import METHODS
+    from ipm.methods.diff import Objective
+    from ipm.metrics import evaluate_meshes
+    from ipm.problem import Problem, estimate_anchor
+    from ipm.profiles import get_profile
+    from ipm.synth import synthesize
+
+    record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
+              "device": args.device, "threads": args.threads, "profile": args.profile,
+              "iteration_ms": {}, "reconstructions": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for case in args.cases:
+            synthesize(case, tmp / case, n_views=1, res=512, spp=32, progress=False)
+        views = load_views(tmp / args.cases[0] / "transforms.json")
+        gen = get_generator("dishes")
+        problem = Problem(gen, *estimate_anchor(views))
+        z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.5)
+        for res in args.resolutions:
+            objective = Objective(problem, views, res, 1, get_profile(args.profile))
+            for _ in range(3):
+                objective(z)  # JIT warm-up
+            t0 = time.perf_counter()
+            for _ in range(args.iterations):
+                objective(z)
+            ms = 1000 * (time.perf_counter() - t0) / args.iterations
+            record["iteration_ms"][res] = ms
+            print(f"iteration at {res:4d} px (render + backward, generator lod 1): {ms:8.1f} ms")
+        for case in args.cases:
+            t0 = time.perf_counter()
+            info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator="dishes",
+                                   profile=args.profile, progress=False)
+            seconds = time.perf_counter() - t0
+            m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(tmp / f"rec_{case}" / "mesh.ply"))
+            record["reconstructions"][case] = {"seconds": seconds, "evaluations": info["evaluations"],
+                                               "iou_mean": m["iou_mean"], "viou": m["viou"],
+                                               "has_handle": info["params"]["has_handle"]}
+            print(f"{case:8s} reconstruction: {seconds:7.1f} s, {info['evaluations']} evaluations, "
+                  f"IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}, handle {info['params']['has_handle']}")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(record, indent=2) + "\n")
+    print(f"written {out}; mean reconstruction {np.mean([r['seconds'] for r in record['reconstructions'].values()]):.1f} s")
+
+
+if __name__ == "__main__":
+    main()
