@@ -23,10 +23,11 @@ from ipm.io.atomic import atomic_path  # noqa: E402
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}img{max-width:100%}
-.case{border-top:2px solid #ddd;margin-top:2em}.note{color:#666;font-size:0.9em}"""
+.case{border-top:2px solid #ddd;margin-top:2em}.note{color:#666;font-size:0.9em}
+img.input{width:240px;image-rendering:pixelated}"""
 
 
-def _img(path: Path | None = None, fig=None) -> str:
+def _img(path: Path | None = None, fig=None, cls: str = "") -> str:
     if fig is not None:
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
@@ -36,7 +37,7 @@ def _img(path: Path | None = None, fig=None) -> str:
         data = path.read_bytes()
     else:
         return '<span class="note">(missing)</span>'
-    return f'<img src="data:image/png;base64,{base64.b64encode(data).decode()}">'
+    return f'<img class="{cls}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
 
 
 def _iou_bars(df: pd.DataFrame):
@@ -46,7 +47,7 @@ def _iou_bars(df: pd.DataFrame):
     lo = max(0.0, float(wide.min().min()) - 0.05)
     ax.set_ylim(lo, 1.0)
     ax.set_ylabel("64-view silhouette IoU")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(axis="y", alpha=0.3)
     return fig
 
@@ -80,8 +81,8 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
     for case in config.get("cases", []):
         parts.append(f"<div class='case'><h2>{html.escape(case)}</h2>")
         synth = results / "synth" / case
-        parts.append("<p>input view and its mask</p>" + _img(synth / "rgb" / "000.png") + " "
-                     + _img(synth / "masks" / "000.png"))
+        parts.append("<p>input view and its mask</p>" + _img(synth / "rgb" / "000.png", cls="input") + " "
+                     + _img(synth / "masks" / "000.png", cls="input"))
         for row in df[df["case"] == case].itertuples():
             folder = results / "evaluate" / row.row / case
             parts.append(f"<h3>{html.escape(row.label)}: IoU {row.iou_mean:.3f}, volumetric IoU {row.viou:.3f}</h3>")

@@ -90,3 +90,23 @@ def test_simplify_drops_a_hidden_handle_and_keeps_a_visible_one(mitsuba_cpu):
         objective = Objective(problem, views, 64, 0, get_profile("smoke"))
         out = simplify(problem, objective, z.copy(), tolerance=0.03)
         assert (problem.key(out) == (1,)) == kept
+
+
+def test_match_area_recovers_the_scale(mitsuba_cpu):
+    from ipm.io.views import Views
+    from ipm.methods.diff import Objective
+    from ipm.profiles import get_profile
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.silhouette import SilhouetteRenderer
+
+    gen = get_generator("dishes")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["tea_cup"]), 0.5)
+    cam = orbit_camera([0, 0.3, 0], 3.0, 30.0, 20.0)[None]
+    truth = problem.world_mesh(z, 0)
+    masks = SilhouetteRenderer(cam, 0.7, 64, 64, spp=16).render(truth.vertices, truth.faces) > 0.5
+    objective = Objective(problem, Views(0.7, 64, 64, cam, masks.astype(np.float32)), 64, 0, get_profile("smoke"))
+    wrong = z.copy()
+    wrong[-1] += np.log(1.6)
+    fixed = objective.match_area(wrong)
+    assert abs(fixed[-1] - z[-1]) < 0.25 * np.log(1.6)

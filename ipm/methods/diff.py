@@ -21,7 +21,7 @@ from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views
 from ipm.methods import METHODS
 from ipm.optim.memetic import Individual, adam_steps, memetic
-from ipm.problem import Problem, estimate_anchor
+from ipm.problem import POSE_NAMES, Problem, estimate_anchor
 from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
 
@@ -56,9 +56,25 @@ class Objective:
         reg, reg_grad = self.problem.regulariser(z, self.reg)
         return loss + reg, grad + reg_grad
 
+    def match_area(self, z: np.ndarray, rounds: int = 2) -> np.ndarray:
+        """Rescale ``z`` so its silhouettes cover as many pixels as the targets (a robust start:
+        presets differ in proportions, so matching the anchor height alone can be far off)."""
+        z = z.copy()
+        key = self.problem.key(z)
+        topo = self.problem.generator.topology(key, self.lod)
+        fn = self.problem.vertex_fn(key, self.lod)
+        i = self.problem.n_shape + POSE_NAMES.index("log_scale")
+        for _ in range(rounds):
+            area = self.renderer.render(np.asarray(fn(z)).reshape(-1, 3), topo.faces).sum()
+            z[i] += 0.5 * np.log(self.targets.sum() / max(area, 1.0))
+            z = self.problem.clip(z)
+        return z
 
-def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Generator) -> list[Individual]:
-    """Presets and random samples, spread over yaw bins (the memetic algorithm's start)."""
+
+def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Generator,
+                       prepare=lambda z: z) -> list[Individual]:
+    """Presets and random samples, spread over yaw bins (the memetic algorithm's start);
+    ``prepare`` adjusts each start (e.g. its scale)."""
     presets = list(problem.generator.presets.items())
     n_random = int(round(profile.random_share * profile.population))
     bins = rng.permutation(np.resize(np.arange(profile.yaw_bins), max(profile.population, profile.yaw_bins)))
@@ -70,7 +86,7 @@ def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Ge
             u = problem.spec.to_unit(x)
         else:
             name, u = "random", rng.random(problem.n_shape)
-        z = problem.initial_z(u, yaw)
+        z = prepare(problem.initial_z(u, yaw))
         pop.append(Individual(z, problem.key(z), name, lr=profile.lr))
     return pop
 
@@ -114,8 +130,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
 
     discrete = problem.spec.discrete
     objective = Objective(problem, views, profile.memetic_res, profile.memetic_lod, profile)
-    best = memetic(initial_population(problem, profile, rng), objective, problem.clip, problem.key,
-                   problem.n_shape, discrete, profile, rng, on_eval)
+    start = initial_population(problem, profile, rng, objective.match_area)
+    best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, discrete, profile, rng, on_eval,
+                   prepare=objective.match_area)
     z = best.best_z
     for res, iters in zip(profile.refine_res, profile.refine_iterations):
         state.update(stage="refine", res=res, best=np.inf)

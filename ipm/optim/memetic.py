@@ -118,8 +118,12 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
             n_shape: int, discrete: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
-            on_eval: Callable = lambda ind: None) -> Individual:
-    """Run the memetic stage from ``initial``; the returned individual's ``best_z`` is the answer."""
+            on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z) -> Individual:
+    """Run the memetic stage from ``initial``; the returned individual's ``best_z`` is the answer.
+
+    ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
+    rescales it to the targets' silhouette area, as it does for the initial population).
+    """
     pop = list(initial)
     best = None
     for it in range(profile.ga_iterations):
@@ -144,5 +148,8 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
         probs = np.exp(logq - logq.max())
         probs /= probs.sum()
         while len(pop) < profile.population:
-            pop.append(make_child(pop[:keep], probs, rng, n_shape, profile, discrete, key_of, clip))
+            child = make_child(pop[:keep], probs, rng, n_shape, profile, discrete, key_of, clip)
+            child.z = prepare(child.z)
+            child.key = key_of(child.z)
+            pop.append(child)
     return best
