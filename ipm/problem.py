@@ -21,10 +21,12 @@ from ipm.io.views import Views
 from ipm.render.cameras import pixel_ray
 
 POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
-POSE_LOWER = np.array([-np.inf, -0.35, -0.35, -1.5, -0.03, -1.5, -2.5])
-POSE_UPPER = np.array([np.inf, 0.35, 0.35, 1.5, 0.03, 1.5, 2.5])
-"""Pose bounds. ``dy`` stays near 0: the object stands on y = 0 (DESIGN.md), and this prior is
-what resolves the single-view ambiguity between distance along the ray and scale."""
+POSE_LOWER = np.array([-np.inf, -0.1, -0.1, -1.5, 0.0, -1.5, -2.5])
+POSE_UPPER = np.array([np.inf, 0.1, 0.1, 1.5, 0.0, 1.5, 2.5])
+"""Pose bounds. ``dy`` is held at 0: the object stands on y = 0 (DESIGN.md). This prior is what
+resolves the single-view ambiguity between distance along the ray and scale: letting the base
+float even 3 % of the height let a run slide 7 cm along the ray (IoU 0.83 instead of 0.99).
+Tilts are small (under 6 degrees), for the same reason."""
 
 
 def estimate_anchor(views: Views) -> tuple[np.ndarray, float]:

@@ -70,6 +70,13 @@ def evaluate_step(reference: str, mesh: str, timing: str, metrics: str, preview:
         write_json(Path(metrics).parent / "row.json", {**row, "seconds": seconds})
 
 
+def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, threads: int = 1, log=None):
+    with _logged(log, threads, mitsuba=True):
+        from ipm.render.preview import parts_sheet
+
+        parts_sheet(reference, mesh, transforms, png)
+
+
 def table_step(metrics: list[str], table: str, wide: str, log=None):
     with _logged(log, 1):
         from ipm.table import build_table

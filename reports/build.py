@@ -88,6 +88,9 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
             parts.append(f"<h3>{html.escape(row.label)}: IoU {row.iou_mean:.3f}, volumetric IoU {row.viou:.3f}</h3>")
             parts.append(_img(folder / "preview.png"))
             recon = results / "reconstruct" / row.row / case
+            if (recon / "parts.png").exists():
+                parts.append("<p class='note'>reference (top) and reconstruction (bottom), one colour per part</p>"
+                             + _img(recon / "parts.png"))
             if (recon / "trace.csv").exists():
                 parts.append(_img(fig=_trace_plot(pd.read_csv(recon / "trace.csv"))))
             if (recon / "params.json").exists():

@@ -39,6 +39,7 @@ def test_diff_reconstruction_writes_everything(tmp_path, tiny_case):
     gen = get_generator("dishes")
     assert list(params["params"]) == list(gen.spec.names) and params == json.loads(json.dumps(info))
     assert set(params["pose"]) == {"yaw", "tilt_x", "tilt_z", "translation", "scale"}
+    assert params["pose"]["translation"][1] == 0.0  # it stands on the ground plane
     trace = pd.read_csv(out / "trace.csv")
     assert len(trace) == params["evaluations"] and {"memetic", "refine"} <= set(trace["stage"])
     assert trace["best"].iloc[-1] <= trace["loss"].iloc[0]  # the search improved on its start

@@ -42,3 +42,17 @@ def test_synth_writes_consistent_views(tiny_case):
     rc = raycast_masks(ref, list(views.c2w), res=64, fov_deg=np.degrees(views.fov_x))
     for a, b in zip(views.masks > 0.5, rc):
         assert (a & b).sum() / (a | b).sum() > 0.93
+
+
+def test_parts_sheet_shows_the_handle_in_its_colour(tmp_path, tiny_case):
+    from PIL import Image
+
+    from ipm.render.preview import parts_sheet
+
+    out = tmp_path / "parts.png"
+    parts_sheet(tiny_case / "reference.ply", tiny_case / "reference.ply", tiny_case / "transforms.json", out,
+                res=64, spp=4)
+    img = np.asarray(Image.open(out)).astype(int)
+    assert img.shape == (128, 192, 3)
+    orange = (img[..., 0] - img[..., 2] > 60)  # the handle's colour; the body and background are grey
+    assert orange[:64].sum() > 10 and orange[64:].sum() > 10

@@ -31,7 +31,7 @@ def test_dry_run_plans_every_stage(config, tmp_path):
     res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
                     "--directory", str(tmp_path))
     assert res.returncode == 0, res.stdout + res.stderr
-    for rule in ("synth", "reconstruct", "reference_line", "evaluate", "table", "report"):
+    for rule in ("synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report"):
         assert f"rule {rule}:" in res.stdout
 
 
@@ -56,5 +56,6 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert (hull.values > sphere.values).all()  # the hull is the tighter reference line
     html = (tmp_path / "results/report/index.html").read_text()
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
+    assert (tmp_path / "results/reconstruct/diff_1v/cup_1/parts.png").is_file()
     wide = pd.read_csv(tmp_path / "results/table_iou.csv", index_col=0)
     assert list(wide.columns) == ["cup_1", "cup_ext"]

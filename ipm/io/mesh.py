@@ -29,6 +29,14 @@ def load_mesh(path: str | os.PathLike, allow_empty: bool = False) -> trimesh.Tri
     return mesh
 
 
+def part_labels(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    """The per-face ``part`` property of a mesh loaded from one of our PLY files (None if absent)."""
+    face = mesh.metadata.get("_ply_raw", {}).get("face", {}).get("data")
+    if face is None or getattr(face, "dtype", None) is None or "part" not in face.dtype.names:
+        return None
+    return np.asarray(face["part"], np.int32)
+
+
 def save_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
              labels: np.ndarray | None = None) -> None:
     """Write a binary PLY atomically; ``labels`` (one int per face) go in a ``part`` face property."""

@@ -30,6 +30,11 @@ def unweld(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray):
     return vertices[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3), corners_uv.reshape(-1, 2)
 
 
+PART_COLOURS = np.array([[0.75, 0.75, 0.78], [0.85, 0.35, 0.15], [0.2, 0.55, 0.25], [0.2, 0.35, 0.8],
+                         [0.8, 0.7, 0.2], [0.6, 0.3, 0.7]])
+"""Diffuse colour of part label k (body grey, handle orange, ...), cycling beyond six parts."""
+
+
 def render_rgb(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, height: int,
                texture_seed: int = 0, spp: int = 64) -> np.ndarray:
     """Linear RGB renders (n, height, width, 3) of a textured mesh for each camera."""
@@ -39,9 +44,35 @@ def render_rgb(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, h
     mesh = mi.Mesh("object", len(v), len(f), has_vertex_texcoords=True,
                    props=_bsdf_props(procedural_texture(texture_seed)))
     mp = mi.traverse(mesh)
+    mp["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
+    return _render_lit(mesh, v, f, c2w, fov_x, width, height, spp)
+
+
+def render_parts(vertices, faces, labels, c2w: np.ndarray, fov_x: float, width: int, height: int,
+                 spp: int = 32) -> np.ndarray:
+    """Linear RGB renders (n, height, width, 3) with one flat colour per part label."""
+    import mitsuba as mi
+
+    faces = np.asarray(faces)
+    v = np.asarray(vertices)[faces].reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    labels = np.zeros(len(faces), int) if labels is None else np.asarray(labels)
+    colours = np.repeat(PART_COLOURS[labels % len(PART_COLOURS)], 3, axis=0)
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "mesh_attribute",
+                                                                     "name": "vertex_color"}})
+    mesh = mi.Mesh("object", len(v), len(f), props=props)
+    mesh.add_attribute("vertex_color", 3, mi.Float(colours.astype(np.float32).ravel()))
+    return _render_lit(mesh, v, f, c2w, fov_x, width, height, spp)
+
+
+def _render_lit(mesh, v, f, c2w, fov_x, width, height, spp):
+    """Set the mesh buffers and render it under the reference lighting from each camera."""
+    import mitsuba as mi
+
+    mp = mi.traverse(mesh)
     mp["vertex_positions"] = mi.Float(v.astype(np.float32).ravel())
     mp["faces"] = mi.UInt32(f.astype(np.uint32).ravel())
-    mp["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
     mp.update()
     scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 3}, "object": mesh,
              "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.35}},

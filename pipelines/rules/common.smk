@@ -57,5 +57,9 @@ def all_metrics():
     return expand("results/evaluate/{row}/{case}/metrics.json", row=all_rows(), case=config["cases"])
 
 
+def all_parts_previews():
+    return expand("results/reconstruct/{row}/{case}/parts.png", row=method_rows(), case=config["cases"])
+
+
 def get_final_output():
     return ["results/table.csv", "results/table_iou.csv", "results/report/index.html"]

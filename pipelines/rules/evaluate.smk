@@ -27,3 +27,29 @@ rule evaluate:
         "../envs/ipm.yaml"
     script:
         "../scripts/evaluate.py"
+
+
+rule parts_preview:
+    input:
+        reference=rules.synth.output.reference,
+        transforms=rules.synth.output.transforms,
+        mesh="results/reconstruct/{row}/{case}/mesh.ply",
+    output:
+        png=report(
+            "results/reconstruct/{row}/{case}/parts.png",
+            caption="../report/parts.rst",
+            category="Part-labelled meshes",
+            subcategory="{case}",
+            labels={"case": "{case}", "row": "{row}"},
+        ),
+    log:
+        "logs/parts_preview/{row}/{case}.log",
+    wildcard_constraints:
+        row="(?!line_)[A-Za-z0-9]+_[0-9]+v",
+    threads: 1
+    resources:
+        mem_mb=2000,
+    conda:
+        "../envs/ipm.yaml"
+    script:
+        "../scripts/parts_preview.py"

@@ -20,6 +20,7 @@ rule report:
         table=rules.table.output.table,
         wide=rules.table.output.wide,
         metrics=all_metrics(),
+        parts=all_parts_previews(),
     output:
         html="results/report/index.html",
     log:
