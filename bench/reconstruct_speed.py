@@ -24,6 +24,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--profile", default="default")
     ap.add_argument("--cases", nargs="+", default=["cup_1", "cup_2", "cup_ext"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="one reconstruction per case and seed")
     ap.add_argument("--resolutions", nargs="+", type=int, default=[128, 256, 512])
     ap.add_argument("--iterations", type=int, default=20, help="timed iterations per resolution")
     ap.add_argument("--out", default="results/bench/reconstruct_speed.json")
@@ -64,18 +65,20 @@ def main() -> None:
                 objective(z)
             ms = 1000 * (time.perf_counter() - t0) / args.iterations
             record["iteration_ms"][res] = ms
-            print(f"iteration at {res:4d} px (render + backward, generator lod 1): {ms:8.1f} ms")
+            print(f"iteration at {res:4d} px (render + backward, generator lod 1): {ms:8.1f} ms", flush=True)
         for case in args.cases:
-            t0 = time.perf_counter()
-            info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator="dishes",
-                                   profile=args.profile, progress=False)
-            seconds = time.perf_counter() - t0
-            m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(tmp / f"rec_{case}" / "mesh.ply"))
-            record["reconstructions"][case] = {"seconds": seconds, "evaluations": info["evaluations"],
-                                               "iou_mean": m["iou_mean"], "viou": m["viou"],
-                                               "has_handle": info["params"]["has_handle"]}
-            print(f"{case:8s} reconstruction: {seconds:7.1f} s, {info['evaluations']} evaluations, "
-                  f"IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}, handle {info['params']['has_handle']}")
+            for seed in args.seeds:
+                t0 = time.perf_counter()
+                info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator="dishes",
+                                       profile=args.profile, seed=seed, progress=False)
+                seconds = time.perf_counter() - t0
+                m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(tmp / f"rec_{case}" / "mesh.ply"))
+                record["reconstructions"][f"{case}/seed{seed}"] = {
+                    "seconds": seconds, "evaluations": info["evaluations"], "iou_mean": m["iou_mean"],
+                    "viou": m["viou"], "has_handle": info["params"]["has_handle"]}
+                print(f"{case:8s} seed {seed}: {seconds:7.1f} s, {info['evaluations']} evaluations, "
+                      f"IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}, handle {info['params']['has_handle']}",
+                      flush=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(record, indent=2) + "\n")

@@ -44,7 +44,6 @@ class Objective:
         self.targets = resize_masks(views.masks, width)
         h = self.targets.shape[1]
         self.renderer = SilhouetteRenderer(views.c2w, views.fov_x, width, h, profile.spp)
-        self.views_c2w = views.c2w
         self.calls = 0
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
@@ -62,26 +61,6 @@ class Objective:
         topo = self.problem.generator.topology(key, self.lod)
         verts = np.asarray(self.problem.vertex_fn(key, self.lod)(z)).reshape(-1, 3)
         return self.renderer.render(verts, topo.faces)
-
-    def place(self, z: np.ndarray, offsets=(-0.45, -0.3, -0.15, 0.0, 0.15, 0.3)) -> np.ndarray:
-        """Start ``z`` at its best depth: slide it along the first camera's ground direction by
-        ``offsets`` (units of the anchor height), rescale each to the targets' silhouette area, and
-        keep the one whose silhouettes match best. One view leaves depth, size and shape partly
-        interchangeable; searching depth up front keeps Adam out of the wrong member of that family."""
-        n = self.problem.n_shape
-        fwd = -self.views_c2w[0][:3, 2].copy()
-        fwd[1] = 0.0
-        fwd /= max(np.linalg.norm(fwd), 1e-9)
-        best, best_loss = z, np.inf
-        for d in offsets:
-            c = z.copy()
-            c[n + 3] += d * fwd[0]
-            c[n + 5] += d * fwd[2]
-            c = self.match_area(self.problem.clip(c))
-            loss = float(np.mean((self._render(c) - self.targets) ** 2))
-            if loss < best_loss:
-                best, best_loss = c, loss
-        return best
 
     def match_area(self, z: np.ndarray, rounds: int = 2) -> np.ndarray:
         """Rescale ``z`` so its silhouettes cover as many pixels as the targets (a robust start:
@@ -154,7 +133,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
 
     discrete = problem.spec.discrete
     objective = Objective(problem, views, profile.memetic_res, profile.memetic_lod, profile)
-    start = initial_population(problem, profile, rng, objective.place)
+    start = initial_population(problem, profile, rng, objective.match_area)
     best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, discrete, profile, rng, on_eval,
                    prepare=objective.match_area)
     z = best.best_z
