@@ -33,8 +33,8 @@ def estimate_anchor(views: Views) -> tuple[np.ndarray, float]:
     """Ground position (x, 0, z) and height of the object from the first view's mask.
 
     The lowest mask row is taken as the object's front contact with the ground plane y = 0;
-    the highest row gives the height along the vertical through that point; the mask width
-    gives the depth offset to the object's axis.
+    the highest row gives the height along the vertical through that point; the mask width just
+    above the base gives the depth offset to the object's axis.
     """
     mask, c2w = views.masks[0], views.c2w[0]
     h, w = mask.shape
@@ -51,9 +51,10 @@ def estimate_anchor(views: Views) -> tuple[np.ndarray, float]:
     horiz = np.array([d2[0], 0.0, d2[2]])
     s = np.dot(contact - o2, horiz) / max(np.dot(horiz, horiz), 1e-9)
     height = float(o2[1] + s * d2[1])
-    # width at mid height -> push the contact point back to the object's axis
-    mid = (top + bottom) // 2
-    mcols = np.nonzero(mask[mid] > 0.5)[0]
+    # width just above the base -> push the contact point back to the object's axis (the width at
+    # mid height overshoots for vessels that widen upwards, such as bowls)
+    low = bottom - max(1, int(round(0.1 * (bottom - top))))
+    mcols = np.nonzero(mask[low] > 0.5)[0]
     dist = np.linalg.norm(contact - origin)
     f = 0.5 * w / np.tan(0.5 * views.fov_x)
     half_width = 0.5 * (mcols.max() - mcols.min() + 1) * dist / f
