@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -81,15 +80,9 @@ def _run(args) -> None:
                            grid=args.grid, preview_path=args.preview)
         print(f"{args.out}: IoU {m['iou_mean']:.4f} (min {m['iou_min']:.4f}), volumetric IoU {m['viou']:.4f}")
     elif args.command == "reference-line":
-        from ipm.io import atomic_dir, load_mesh, save_ply, write_json
-        from ipm.reference_lines import REFERENCE_LINES
+        from ipm.reference_lines import write_reference_line
 
-        make = REFERENCE_LINES[args.name]
-        t0 = time.perf_counter()
-        mesh = make(load_mesh(args.reference))
-        with atomic_dir(args.out) as tmp:
-            save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces)
-            write_json(tmp / "timing.json", {"seconds": time.perf_counter() - t0})
+        write_reference_line(args.name, args.reference, args.out)
 
 
 def main(argv: list[str] | None = None) -> int:

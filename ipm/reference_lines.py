@@ -5,6 +5,8 @@ sphere show where "shape-agnostic" answers already land, so method rows can be r
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import trimesh
 
@@ -26,3 +28,15 @@ def bounding_sphere(reference: trimesh.Trimesh) -> trimesh.Trimesh:
     centre = (lo + hi) / 2
     radius = float(np.linalg.norm(reference.vertices - centre, axis=1).max())
     return trimesh.creation.icosphere(subdivisions=4, radius=radius).apply_translation(centre)
+
+
+def write_reference_line(name: str, reference: str, out: str) -> None:
+    """``ipm reference-line``: OUT/mesh.ply and OUT/timing.json for line ``name``, atomically."""
+    from ipm.io import atomic_dir, load_mesh, save_ply, write_json
+
+    make = REFERENCE_LINES[name]
+    t0 = time.perf_counter()
+    mesh = make(load_mesh(reference))
+    with atomic_dir(out) as tmp:
+        save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces)
+        write_json(tmp / "timing.json", {"seconds": time.perf_counter() - t0})

@@ -49,11 +49,9 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
 
 def reference_line_step(name: str, reference: str, mesh: str, threads: int = 1, log=None):
     with _logged(log, threads):
-        from ipm.cli import main
+        from ipm.reference_lines import write_reference_line
 
-        out = str(Path(mesh).parent)
-        if main(["reference-line", name, "--reference", reference, "--out", out, "--threads", str(threads)]):
-            raise RuntimeError(f"reference line {name} failed")
+        write_reference_line(name, reference, Path(mesh).parent)
 
 
 def evaluate_step(reference: str, mesh: str, timing: str, metrics: str, preview: str, row: dict,
