@@ -3,9 +3,9 @@ with one colour per part, seen from the input camera and from two cameras around
 from __future__ import annotations
 
 import numpy as np
-from PIL import Image
 
-from ipm.io import atomic_path, load_mesh, load_views, part_labels
+from ipm.io import load_mesh, load_views, part_labels
+from ipm.io.views import save_rgb
 from ipm.render.textured import render_parts
 
 
@@ -32,7 +32,4 @@ def parts_sheet(reference: str, mesh: str, transforms: str, out_png: str, res: i
             rows.append(np.zeros((3, res, res, 3)))
             continue
         rows.append(render_parts(m.vertices, m.faces, part_labels(m), cams, views.fov_x, res, res, spp))
-    img = np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0)
-    srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.power(np.clip(img, 0, 1), 1 / 2.4) - 0.055)
-    with atomic_path(out_png) as tmp:
-        Image.fromarray((np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8)).save(tmp, format="PNG")
+    save_rgb(out_png, np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0))
