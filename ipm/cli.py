@@ -1,6 +1,7 @@
 """``ipm``: the command line (DESIGN.md, "Command-line contract").
 
 Bad input ends with one line on stderr and exit code 2; set ``IPM_DEBUG=1`` for tracebacks.
+A baseline that ran but produced no mesh (COLMAP registering too few images) exits with 3.
 Heavy modules are imported after the thread settings, which XLA reads at import time.
 """
 from __future__ import annotations
@@ -20,6 +21,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--views", type=int, default=1, help="number of views (view 0 is the input view)")
     s.add_argument("--res", type=int, default=256, help="image width and height in pixels")
     s.add_argument("--spp", type=int, default=64, help="samples per pixel of the RGB renders")
+    s.add_argument("--layout", default="hemi", help="views: hemi (input view + hemisphere) or ring (for COLMAP)")
 
     r = sub.add_parser("reconstruct", help="fit a procedural generator to masks")
     r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")
@@ -29,6 +31,15 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
     r.add_argument("--seed", type=int, default=0, help="random seed")
     r.add_argument("--n-input-views", type=int, default=None,
+                   help="use only the first N frames of transforms.json (default: all)")
+
+    b = sub.add_parser("baseline", help="run a baseline (diffsdf, visual_hull, colmap_known, colmap_sfm)")
+    b.add_argument("name", help="registered baseline name")
+    b.add_argument("--views", required=True, help="transforms.json (masks; textured RGB for COLMAP)")
+    b.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json, info.json)")
+    b.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
+    b.add_argument("--seed", type=int, default=0, help="random seed")
+    b.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
 
     e = sub.add_parser("evaluate", help="64-view silhouette IoU and the other metrics")
@@ -45,14 +56,15 @@ def _parser() -> argparse.ArgumentParser:
     lr.add_argument("--reference", required=True, help="reference mesh (PLY)")
     lr.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json)")
 
-    for sp in (s, r, e, lr):
+    for sp in (s, r, b, e, lr):
         sp.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU threads")
         sp.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Mitsuba/JAX device")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
 
-def _run(args) -> None:
+def _run(args) -> int:
+    from ipm.errors import UserError
     from ipm.runtime import configure_threads
 
     configure_threads(args.threads, args.device)
@@ -61,7 +73,8 @@ def _run(args) -> None:
         from ipm.synth import synthesize
 
         set_mitsuba_variant(args.device, args.threads)
-        synthesize(args.case, args.out, n_views=args.views, res=args.res, spp=args.spp, progress=not args.quiet)
+        synthesize(args.case, args.out, n_views=args.views, res=args.res, spp=args.spp, progress=not args.quiet,
+                   layout=args.layout)
     elif args.command == "reconstruct":
         from ipm.generators import GENERATORS
         from ipm.methods import METHODS
@@ -73,6 +86,20 @@ def _run(args) -> None:
         info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views)
         print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
+    elif args.command == "baseline":
+        from ipm.methods import METHODS
+        from ipm.runtime import set_mitsuba_variant
+
+        method = METHODS[args.name]
+        if method.uses_generator:
+            raise UserError(f"{args.name!r} is not a baseline: use ipm reconstruct --method {args.name}")
+        set_mitsuba_variant(args.device, args.threads)
+        info = method(args.views, args.out, profile=args.profile, seed=args.seed, progress=not args.quiet,
+                      n_input_views=args.n_input_views)
+        if info.get("failed"):
+            print(f"{args.out}: no mesh: {info['failed']}")
+            return 3
+        print(f"{args.out}: mesh in {info['seconds']:.1f} s")
     elif args.command == "evaluate":
         from ipm.metrics.evaluate import evaluate_files
 
@@ -83,6 +110,7 @@ def _run(args) -> None:
         from ipm.reference_lines import write_reference_line
 
         write_reference_line(args.name, args.reference, args.out)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     from ipm.errors import UserError
 
     try:
-        _run(args)
+        return _run(args)
     except UserError as exc:
         print(f"ipm {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -102,7 +130,6 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"ipm {args.command}: failed: {type(exc).__name__}: {exc} (IPM_DEBUG=1 for details)", file=sys.stderr)
         return 1
-    return 0
 
 
 if __name__ == "__main__":

@@ -92,7 +92,7 @@ class Problem:
         self.lower = np.concatenate([np.zeros(self.n_shape), POSE_LOWER])
         self.upper = np.concatenate([np.ones(self.n_shape), POSE_UPPER])
         groups = getattr(generator, "smooth_groups", ())
-        self._smooth = [(np.arange(a, b), w) for a, b, w in groups]
+        self._smooth = [(np.arange(a, b), w, np.diff(np.eye(b - a), order, axis=0)) for a, b, w, order in groups]
 
     def key(self, z: np.ndarray) -> tuple:
         """Topology key (discrete parameter values) of ``z``."""
@@ -131,17 +131,14 @@ class Problem:
         return jax.jit(fn)
 
     def regulariser(self, z: np.ndarray, weight: float) -> tuple[float, np.ndarray]:
-        """Smoothness prior on the generator's control sequences: mean squared second differences."""
+        """Smoothness prior on the generator's control sequences: mean squared finite differences
+        of each group's order (``generator.smooth_groups``)."""
         grad = np.zeros_like(z)
         value = 0.0
-        for idx, w in self._smooth:
-            u = z[idx]
-            d2 = u[2:] - 2 * u[1:-1] + u[:-2]
-            value += weight * w * np.mean(d2**2)
-            g = 2 * weight * w * d2 / len(d2)
-            grad[idx[2:]] += g
-            grad[idx[1:-1]] -= 2 * g
-            grad[idx[:-2]] += g
+        for idx, w, diff in self._smooth:
+            d = diff @ z[idx]
+            value += weight * w * np.mean(d**2)
+            grad[idx] += 2 * weight * w / len(d) * (diff.T @ d)
         return value, grad
 
     def world_mesh(self, z: np.ndarray, lod: int) -> Mesh:

@@ -31,20 +31,30 @@ def _logged(log: str | None, threads: int, mitsuba: bool = False):
             stream.close()
 
 
-def synth_step(case: str, transforms: str, views: int, res: int, spp: int, threads: int = 1, log=None):
+def synth_step(case: str, transforms: str, views: int, res: int, spp: int, layout: str = "hemi",
+               threads: int = 1, log=None):
     with _logged(log, threads, mitsuba=True):
         from ipm.synth import synthesize
 
-        synthesize(case, Path(transforms).parent, n_views=views, res=res, spp=spp)
+        synthesize(case, Path(transforms).parent, n_views=views, res=res, spp=spp, layout=layout)
+
+
+def reference_step(case: str, reference: str, log=None):
+    with _logged(log, 1):
+        from ipm.synth import write_reference
+
+        write_reference(case, Path(reference).parent)
 
 
 def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, profile: str, seed: int,
                      n_input_views: int, threads: int = 1, log=None):
+    """One reconstruction, ours or a baseline (the generator goes only to methods that take one)."""
     with _logged(log, threads, mitsuba=True):
         from ipm.methods import METHODS
 
-        METHODS[method](transforms, Path(mesh).parent, generator=generator, profile=profile, seed=seed,
-                        n_input_views=n_input_views)
+        fn = METHODS[method]
+        extra = {"generator": generator} if fn.uses_generator else {}
+        fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra)
 
 
 def reference_line_step(name: str, reference: str, mesh: str, threads: int = 1, log=None):
@@ -56,16 +66,23 @@ def reference_line_step(name: str, reference: str, mesh: str, threads: int = 1, 
 
 def evaluate_step(reference: str, mesh: str, timing: str, metrics: str, preview: str, row: dict,
                   n_views: int, res: int, grid: int, threads: int = 1, log=None):
-    """Metrics of one reconstruction, and ``row.json`` (table label, kind, wall time) beside them."""
+    """Metrics of one reconstruction, and ``row.json`` (table label, kind, wall time, note) beside
+    them. A run that recorded a failure (``failed`` in its info.json) gets no metrics, only the reason."""
     with _logged(log, threads):
         import json
 
         from ipm.io import write_json
-        from ipm.metrics.evaluate import evaluate_files
+        from ipm.metrics.evaluate import evaluate_files, failure_files
 
-        evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview)
+        info_path = Path(mesh).parent / "info.json"
+        info = json.loads(info_path.read_text()) if info_path.exists() else {}
+        if info.get("failed"):
+            failure_files(info["failed"], metrics, preview)
+        else:
+            evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview)
         seconds = json.loads(Path(timing).read_text()).get("seconds")
-        write_json(Path(metrics).parent / "row.json", {**row, "seconds": seconds})
+        note = f"failed: {info['failed']}" if info.get("failed") else info.get("note", "")
+        write_json(Path(metrics).parent / "row.json", {**row, "seconds": seconds, "note": note})
 
 
 def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, threads: int = 1, log=None):
@@ -82,8 +99,9 @@ def table_step(metrics: list[str], table: str, wide: str, log=None):
         build_table(metrics, table, wide)
 
 
-def report_step(table: str, wide: str, metrics: list[str], out: str, config: dict, log=None):
+def report_step(table: str, wide: str, metrics: list[str], out: str, config: dict, input_dirs: dict, log=None):
     with _logged(log, 1):
         from reports.build import build_report
 
-        build_report(table_csv=table, wide_csv=wide, metrics=metrics, out_html=out, config=config)
+        build_report(table_csv=table, wide_csv=wide, metrics=metrics, out_html=out, config=config,
+                     input_dirs=input_dirs)

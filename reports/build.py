@@ -64,8 +64,10 @@ def _trace_plot(trace: pd.DataFrame):
     return fig
 
 
-def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: str, config: dict) -> None:
-    """Write ``out_html`` from the table and the per-case result folders."""
+def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: str, config: dict,
+                 input_dirs: dict | None = None) -> None:
+    """Write ``out_html`` from the table and the per-case result folders; ``input_dirs`` maps a
+    case to the folder of its input views (relative to the working directory)."""
     df = pd.read_csv(table_csv)
     wide = pd.read_csv(wide_csv, index_col=0)
     results = Path(table_csv).parent
@@ -77,15 +79,22 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
              f"views (DESIGN.md); reference lines are computed from the reference itself.</p>",
              "<h2>Table 1: mean silhouette IoU</h2>", wide.to_html(float_format="%.3f", na_rep="-"),
              _img(fig=_iou_bars(df)), "<h2>All metrics</h2>",
-             df.drop(columns=["row", "kind"]).to_html(index=False, float_format="%.4f", na_rep="-")]
+             df.drop(columns=["row", "kind"]).to_html(index=False, float_format="%.4f", na_rep="-"),
+             "<h2>Wall time per method</h2><p class='note'>seconds per reconstruction, one thread each, "
+             "mean over cases</p>",
+             df.groupby("label", sort=False)["seconds"].agg(["mean", "min", "max"]).to_html(float_format="%.1f")]
     for case in config.get("cases", []):
         parts.append(f"<div class='case'><h2>{html.escape(case)}</h2>")
-        synth = results / "synth" / case
+        synth = Path((input_dirs or {}).get(case, results / "synth" / case))
         parts.append("<p>input view and its mask</p>" + _img(synth / "rgb" / "000.png", cls="input") + " "
                      + _img(synth / "masks" / "000.png", cls="input"))
         for row in df[df["case"] == case].itertuples():
             folder = results / "evaluate" / row.row / case
-            parts.append(f"<h3>{html.escape(row.label)}: IoU {row.iou_mean:.3f}, volumetric IoU {row.viou:.3f}</h3>")
+            if isinstance(row.note, str) and row.note.startswith("failed"):
+                parts.append(f"<h3>{html.escape(row.label)}: - ({html.escape(row.note)})</h3>")
+                continue
+            note = f" ({html.escape(row.note)})" if isinstance(row.note, str) and row.note else ""
+            parts.append(f"<h3>{html.escape(row.label)}: IoU {row.iou_mean:.3f}, volumetric IoU {row.viou:.3f}{note}</h3>")
             parts.append(_img(folder / "preview.png"))
             recon = results / "reconstruct" / row.row / case
             if (recon / "parts.png").exists():

@@ -56,3 +56,28 @@ def test_parts_sheet_shows_the_handle_in_its_colour(tmp_path, tiny_case):
     assert img.shape == (128, 192, 3)
     orange = (img[..., 0] - img[..., 2] > 60)  # the handle's colour; the body and background are grey
     assert orange[:64].sum() > 10 and orange[64:].sum() > 10
+
+
+@pytest.mark.parametrize("n", [16, 64])
+def test_ring_layout_keeps_neighbours_close_for_sift(n):
+    from ipm.synth import view_cameras
+
+    centre = np.array([0.1, 0.4, -0.2])
+    c2w = view_cameras(centre, 0.6, n, 10.0, 22.0, layout="ring")
+    assert c2w.shape == (n, 4, 4)
+    eyes, forward = c2w[:, :3, 3], -c2w[:, :3, 2]
+    to_centre = (centre - eyes) / np.linalg.norm(centre - eyes, axis=1, keepdims=True)
+    assert np.allclose(np.einsum("ij,ij->i", forward, to_centre), 1.0)  # all look at the object
+    elevation = np.degrees(np.arcsin((eyes[:, 1] - centre[1]) / np.linalg.norm(eyes - centre, axis=1)))
+    assert elevation.min() >= 10.0 and elevation.max() <= 65.0
+    # every view has a neighbour within 22.5 degrees (SfM failed at 45 degree spacing, DESIGN.md)
+    d = to_centre @ to_centre.T
+    np.fill_diagonal(d, -1.0)
+    assert np.degrees(np.arccos(np.clip(d.max(1), -1, 1))).max() <= 22.5 + 1e-6
+
+
+def test_unknown_layout_is_refused():
+    from ipm.synth import view_cameras
+
+    with pytest.raises(UserError, match="unknown view layout"):
+        view_cameras(np.zeros(3), 1.0, 4, 0.0, 20.0, layout="spiral")

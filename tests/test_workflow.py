@@ -31,7 +31,7 @@ def test_dry_run_plans_every_stage(config, tmp_path):
     res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
                     "--directory", str(tmp_path))
     assert res.returncode == 0, res.stdout + res.stderr
-    for rule in ("synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report"):
+    for rule in ("reference", "synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report"):
         assert f"rule {rule}:" in res.stdout
 
 
@@ -42,6 +42,13 @@ def test_invalid_config_is_refused(tmp_path):
     assert res.returncode != 0 and "turbo" in res.stdout + res.stderr
 
 
+def test_unknown_method_is_refused(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("methods: [{name: nerf, views: 16}]\n")
+    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
+    assert res.returncode != 0 and "unknown method 'nerf'" in res.stdout + res.stderr
+
+
 @pytest.mark.slow
 def test_smoke_run_of_the_whole_dag(tmp_path):
     res = snakemake("--cores", "2", "--configfile", str(ROOT / "pipelines/config/smoke.yaml"),
@@ -49,8 +56,15 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     table = pd.read_csv(tmp_path / "results/table.csv")
     assert set(table["case"]) == {"cup_1", "cup_ext"}
-    assert set(table["label"]) == {"ours (diff, 1 view)", "convex hull (reference)", "bounding sphere (reference)"}
-    assert table["iou_mean"].between(0, 1).all() and table["viou"].between(0, 1).all()
+    assert set(table["label"]) == {"ours (diff, 1 view)", "diffSDF-style (2 views)", "COLMAP known poses (16 views)",
+                                   "visual hull (2 views)", "convex hull (reference)", "bounding sphere (reference)"}
+    assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
+    # every row has metrics, or no metrics and the reason it failed (COLMAP on tiny images)
+    failed = table["note"].fillna("").str.startswith("failed: ")
+    assert (table.loc[failed, "label"] == "COLMAP known poses (16 views)").all()
+    ok = table[~failed]
+    assert ok["iou_mean"].between(0, 1).all() and ok["viou"].between(0, 1).all()
+    assert table.loc[failed, "iou_mean"].isna().all()
     hull = table[table["label"] == "convex hull (reference)"]["iou_mean"]
     sphere = table[table["label"] == "bounding sphere (reference)"]["iou_mean"]
     assert (hull.values > sphere.values).all()  # the hull is the tighter reference line
@@ -59,3 +73,4 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert (tmp_path / "results/reconstruct/diff_1v/cup_1/parts.png").is_file()
     wide = pd.read_csv(tmp_path / "results/table_iou.csv", index_col=0)
     assert list(wide.columns) == ["cup_1", "cup_ext"]
+    assert (tmp_path / "results/synth/cup_1/ring16/transforms.json").is_file()

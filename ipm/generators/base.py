@@ -115,6 +115,8 @@ class Generator:
     part_names: tuple[str, ...]
     presets: dict[str, np.ndarray]
     lods: tuple[int, ...] = (0, 1, 2)
+    differentiable: bool = True
+    """False for generators without a JAX positions function (searched by the GA path only)."""
 
     def topology_key(self, x: np.ndarray) -> tuple:
         """The discrete parameter values that decide the topology."""

@@ -65,8 +65,8 @@ class Dishes(Generator):
     lods = tuple(_LOD)
     simplest = {"has_handle": 0.0}
     """Discrete values to prefer when the views cannot tell (ipm.methods.diff.simplify)."""
-    smooth_groups = ((0, N_PROFILE, 0.05), (13, 13 + N_HANDLE, 1.0), (13 + N_HANDLE, 13 + 2 * N_HANDLE, 1.0))
-    """(start, stop, relative weight) of the control sequences under the smoothness prior: the
+    smooth_groups = ((0, N_PROFILE, 0.05, 2), (13, 13 + N_HANDLE, 1.0, 2), (13 + N_HANDLE, 13 + 2 * N_HANDLE, 1.0, 2))
+    """(start, stop, relative weight, difference order) of the control sequences under the smoothness prior: the
     handle's radii and thickness (one view barely constrains them), and lightly the profile (a
     sudden inward kink at the rim would fake an open rim seen from above with a closed lid)."""
     presets = {

@@ -37,6 +37,9 @@ class Views:
     """Directory that frame paths are relative to."""
     semantic_labels: dict | None = None
     """Optional label-name -> value map for semantic images."""
+    semantics: np.ndarray | None = None
+    """Semantic label images (``semantic_path``), shape (n, height, width), uint8; None when the
+    frames have none (or they were not loaded)."""
 
     def __len__(self) -> int:
         return len(self.c2w)
@@ -45,8 +48,9 @@ class Views:
         """The views with indices ``idx`` (a list), in that order."""
         idx = list(idx)
         masks = None if self.masks is None else self.masks[idx]
+        semantics = None if self.semantics is None else self.semantics[idx]
         return Views(self.fov_x, self.width, self.height, self.c2w[idx], masks,
-                     [self.frames[i] for i in idx], self.root, self.semantic_labels)
+                     [self.frames[i] for i in idx], self.root, self.semantic_labels, semantics)
 
 
 def _read_mask(path: Path, width: int, height: int) -> np.ndarray:
@@ -71,8 +75,12 @@ def _read_mask(path: Path, width: int, height: int) -> np.ndarray:
     return mask
 
 
-def load_views(path: str | os.PathLike, masks: bool = True) -> Views:
-    """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input."""
+def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = True) -> Views:
+    """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input.
+
+    With ``semantics``, the frames' ``semantic_path`` label images are read too when the frames
+    have them (all frames or none; each of the views' size, values 0..2, ``ipm.io.semantic``).
+    """
     path = Path(path)
     if not path.is_file():
         raise UserError(f"views file not found: {path}")
@@ -115,8 +123,17 @@ def load_views(path: str | os.PathLike, masks: bool = True) -> Views:
                 raise UserError(f"{path}: frame {i} has no mask_path")
             mask_list.append(_read_mask(path.parent / fr["mask_path"], width, height))
         mask_arr = np.stack(mask_list)
+    sem_arr = None
+    labelled = [i for i, fr in enumerate(frames) if isinstance(fr, dict) and "semantic_path" in fr]
+    if semantics and labelled:
+        from ipm.io.semantic import load_labels
+
+        if len(labelled) != len(frames):
+            missing = next(i for i in range(len(frames)) if i not in set(labelled))
+            raise UserError(f"{path}: frame {missing} has no semantic_path (all frames or none must have one)")
+        sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height) for fr in frames])
     return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
-                 data.get("semantic_labels"))
+                 data.get("semantic_labels"), sem_arr)
 
 
 def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
@@ -145,3 +162,15 @@ def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,
         {**fr, "transform_matrix": np.asarray(fr["transform_matrix"]).tolist()} for fr in frames
     ]
     write_json(path, data)
+
+
+def resize_masks(masks: np.ndarray, width: int) -> np.ndarray:
+    """Area-averaged masks ``width`` pixels wide (aspect kept), float32 in [0, 1]."""
+    n, h, w = masks.shape
+    height = max(1, int(round(h * width / w)))
+    if (height, width) == (h, w):
+        return masks.astype(np.float32)
+    if h % height == 0 and w % width == 0:
+        return masks.reshape(n, height, h // height, width, w // width).mean((2, 4)).astype(np.float32)
+    return np.stack([np.asarray(Image.fromarray(m.astype(np.float32), mode="F").resize(
+        (width, height), Image.BOX), np.float32) for m in masks])

@@ -12,28 +12,17 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from PIL import Image
 from tqdm import tqdm
 
 from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
-from ipm.io.views import Views
-from ipm.methods import METHODS
+from ipm.io.views import Views, resize_masks
+from ipm.methods import method
 from ipm.optim.memetic import Individual, adam_steps, memetic
 from ipm.problem import POSE_NAMES, Problem, estimate_anchor
 from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
-
-
-def resize_masks(masks: np.ndarray, width: int) -> np.ndarray:
-    """Area-averaged masks at ``width`` pixels wide (aspect kept), float32 in [0, 1]."""
-    n, h, w = masks.shape
-    height = max(1, int(round(h * width / w)))
-    if (height, width) == (h, w):
-        return masks.astype(np.float32)
-    return np.stack([np.asarray(Image.fromarray(m.astype(np.float32), mode="F").resize(
-        (width, height), Image.BOX), np.float32) for m in masks])
 
 
 class Objective:
@@ -152,7 +141,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     return z, trace
 
 
-@METHODS.register("diff")
+@method("diff", "ours (diff, {views})", layout="hemi", uses_generator=True)
 def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
              seed: int = 0, progress: bool = True, n_input_views: int | None = None, **overrides) -> dict:
     """``ipm reconstruct --method diff``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""

@@ -95,3 +95,18 @@ def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: 
     if preview_path is not None:
         preview_png(reference, mesh, str(preview_path))
     return metrics
+
+
+def failure_files(reason: str, out_path, preview_path=None) -> None:
+    """Metrics of a run that produced no mesh: only the reason (the table shows "-"), and a
+    preview strip that says so."""
+    from PIL import ImageDraw
+
+    from ipm.io import write_json
+
+    write_json(out_path, {"failed": reason})
+    if preview_path is not None:
+        img = Image.new("RGB", (8 * 132, 132), (40, 40, 40))
+        ImageDraw.Draw(img).text((10, 58), f"no mesh: {reason}"[:150], fill=(230, 230, 230))
+        with atomic_path(preview_path) as tmp:
+            img.save(tmp, format="PNG")

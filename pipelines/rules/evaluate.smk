@@ -1,6 +1,6 @@
 rule evaluate:
     input:
-        reference=rules.synth.output.reference,
+        reference=rules.reference.output.reference,
         mesh="results/reconstruct/{row}/{case}/mesh.ply",
         timing="results/reconstruct/{row}/{case}/timing.json",
     output:
@@ -31,8 +31,8 @@ rule evaluate:
 
 rule parts_preview:
     input:
-        reference=rules.synth.output.reference,
-        transforms=rules.synth.output.transforms,
+        reference=rules.reference.output.reference,
+        transforms=method_transforms,
         mesh="results/reconstruct/{row}/{case}/mesh.ply",
     output:
         png=report(
@@ -45,7 +45,7 @@ rule parts_preview:
     log:
         "logs/parts_preview/{row}/{case}.log",
     wildcard_constraints:
-        row="(?!line_)[A-Za-z0-9]+_[0-9]+v",
+        row=METHOD_ROW,
     threads: 1
     resources:
         mem_mb=2000,

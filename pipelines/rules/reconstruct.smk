@@ -1,13 +1,13 @@
 rule reconstruct:
     input:
-        transforms=rules.synth.output.transforms,
+        transforms=method_transforms,
     output:
         mesh="results/reconstruct/{row}/{case}/mesh.ply",
         timing="results/reconstruct/{row}/{case}/timing.json",
     log:
         "logs/reconstruct/{row}/{case}.log",
     wildcard_constraints:
-        row="(?!line_)[A-Za-z0-9]+_[0-9]+v",
+        row=METHOD_ROW,
     params:
         method=method_name,
         n_input_views=method_views,
@@ -25,7 +25,7 @@ rule reconstruct:
 
 rule reference_line:
     input:
-        reference=rules.synth.output.reference,
+        reference=rules.reference.output.reference,
     output:
         mesh="results/reconstruct/line_{name}/{case}/mesh.ply",
         timing="results/reconstruct/line_{name}/{case}/timing.json",

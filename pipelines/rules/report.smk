@@ -27,6 +27,7 @@ rule report:
         "logs/report.log",
     params:
         config=config,
+        input_dirs=input_view_dirs(),
     threads: 1
     resources:
         mem_mb=1000,

@@ -1,16 +1,32 @@
-rule synth:
+rule reference:
     output:
-        transforms="results/synth/{case}/transforms.json",
         reference="results/synth/{case}/reference.ply",
     log:
-        "logs/synth/{case}.log",
+        "logs/reference/{case}.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+    conda:
+        "../envs/ipm.yaml"
+    script:
+        "../scripts/reference.py"
+
+
+rule synth:
+    output:
+        transforms="results/synth/{case}/{layout}{n}/transforms.json",
+    log:
+        "logs/synth/{case}/{layout}{n}.log",
+    wildcard_constraints:
+        layout="hemi|ring",
+        n="[0-9]+",
     params:
-        views=config["synth"]["views"],
-        res=config["synth"]["res"],
+        views=lambda wildcards: int(wildcards.n),
+        res=synth_res,
         spp=config["synth"]["spp"],
     threads: 1
     resources:
-        mem_mb=2000,
+        mem_mb=3000,
     conda:
         "../envs/ipm.yaml"
     script:

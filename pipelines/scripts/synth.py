@@ -1,4 +1,5 @@
 from ipm.workflow import synth_step
 
 synth_step(case=snakemake.wildcards.case, transforms=snakemake.output.transforms, views=snakemake.params.views,
-           res=snakemake.params.res, spp=snakemake.params.spp, threads=snakemake.threads, log=snakemake.log[0])
+           res=snakemake.params.res, spp=snakemake.params.spp, layout=snakemake.wildcards.layout,
+           threads=snakemake.threads, log=snakemake.log[0])

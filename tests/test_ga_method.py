@@ -1,0 +1,266 @@
+"""The GA path: semantic renders, tree references, the space-colonisation recipe and ``run_ga``."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+from ipm.errors import UserError
+from ipm.io import load_mesh, load_views
+from ipm.io.semantic import LABEL_NAMES, labels_from_rgb
+
+
+def _label_iou(a: np.ndarray, b: np.ndarray, k: int) -> float:
+    return float(((a == k) & (b == k)).sum() / max(((a == k) | (b == k)).sum(), 1))
+
+
+def test_render_labels_agrees_with_raycast_labels(mitsuba_cpu):
+    """Mitsuba's coverage majority and open3d's supersampled closest hits label the same pixels."""
+    from ipm.generators import get_generator
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.semantic import raycast_labels, render_labels
+
+    gen = get_generator("trees")
+    mesh = gen.mesh(gen.preset("oak"), 1)
+    centre = np.array([0.0, 0.8, 0.0])
+    cams = np.stack([orbit_camera(centre, 2.6, az, 10.0) for az in (0.0, 130.0)])
+    a = render_labels(mesh.vertices, mesh.faces, mesh.labels, cams, 0.6911, 128, 128, spp=256)
+    b = raycast_labels(mesh.vertices, mesh.faces, mesh.labels, cams, 0.6911, 128, 128, supersample=5)
+    assert a.shape == b.shape == (2, 128, 128) and a.dtype == b.dtype == np.uint8
+    for i in range(2):
+        assert (a[i] == 1).sum() > 100 and (a[i] == 2).sum() > 1000  # both parts in view
+        for k in (1, 2):
+            assert _label_iou(a[i], b[i], k) > 0.9, (i, k)
+    # one ray per pixel centre: the same objects, only edges differ
+    c = raycast_labels(mesh.vertices, mesh.faces, mesh.labels, cams, 0.6911, 128, 128)
+    assert _label_iou(a[0] > 0, c[0] > 0, 1) > 0.8
+
+
+def test_resample_labels_keeps_the_majority():
+    from ipm.render.semantic import downsample_labels, resample_labels
+
+    lab = np.zeros((8, 8), np.uint8)
+    lab[:4, :4] = 2
+    lab[0, 0] = 1
+    lab[4:, 4:] = 1
+    lab[4:6, 4] = 0
+    out = resample_labels(lab, (0, 0, 8, 8), (2, 2))
+    assert out.tolist() == [[2, 0], [0, 1]]
+    assert np.array_equal(out, downsample_labels(lab, 4))
+    # a window reaching past the image sees background there
+    assert resample_labels(lab, (-8, -8, 8, 8), (2, 2)).tolist() == [[0, 0], [0, 0]]
+
+
+@pytest.fixture(scope="module")
+def tree_case(tmp_path_factory, mitsuba_cpu):
+    """tree_1 at 96 px, two views (input + one more)."""
+    from ipm.synth import synthesize
+
+    out = tmp_path_factory.mktemp("trees") / "tree_1"
+    synthesize("tree_1", out, n_views=2, res=96, spp=16, progress=False)
+    return out
+
+
+def test_tree_synth_writes_semantic_images(tree_case):
+    data = json.loads((tree_case / "transforms.json").read_text())
+    assert data["semantic_labels"] == {"background": 0, "branch": 1, "foliage": 2} == LABEL_NAMES
+    assert [fr["semantic_path"] for fr in data["frames"]] == ["semantic/000.png", "semantic/001.png"]
+    views = load_views(tree_case / "transforms.json")
+    assert views.semantics.shape == (2, 96, 96) and views.semantics.dtype == np.uint8
+    assert set(np.unique(views.semantics)) == {0, 1, 2}
+    for sem, mask in zip(views.semantics, views.masks):
+        assert (sem == 1).sum() > 5 and (sem == 2).sum() > 300  # trunk and crown
+        assert np.array_equal(sem > 0, mask > 0.5)
+    assert views.subset([1]).semantics.shape == (1, 96, 96)
+    # the RGB shows brown branches and green foliage: colour alone recovers the crown
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(tree_case / "rgb" / "000.png"))
+    labels = labels_from_rgb(rgb, views.masks[0])
+    assert _label_iou(labels, views.semantics[0], 2) > 0.85
+    # the input view is near-horizontal
+    forward = -views.c2w[0][:3, 2]
+    assert 5.0 <= np.degrees(np.arcsin(-forward[1])) <= 15.0
+
+
+def test_semantic_images_are_checked(tmp_path, tree_case):
+    from PIL import Image
+
+    case = tmp_path / "case"
+    shutil.copytree(tree_case, case)
+    Image.fromarray(np.zeros((48, 48), np.uint8)).save(case / "semantic" / "001.png")
+    with pytest.raises(UserError, match="expected 96x96"):
+        load_views(case / "transforms.json")
+    (case / "semantic" / "001.png").unlink()
+    with pytest.raises(UserError, match="not found"):
+        load_views(case / "transforms.json")
+    assert load_views(case / "transforms.json", semantics=False).semantics is None
+
+
+def test_space_colonisation_tree_stands_with_both_parts():
+    from ipm.synth import RECIPES, ground_truth_mesh, is_tree_case, load_case
+
+    case = load_case("tree_ext")
+    assert case["generator"] == "trees" and is_tree_case(case) and not is_tree_case(load_case("cup_ext"))
+    v, f, labels, uv = ground_truth_mesh(case)
+    assert set(np.unique(labels)) == {0, 1} and len(uv) == len(v)
+    assert abs(v[:, 1].min()) < 1e-6 and 1.0 < np.ptp(v[:, 1]) < 2.0
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight and m.is_winding_consistent
+    trunk = v[f[labels == 0].ravel()]
+    base = trunk[trunk[:, 1] < 0.05]
+    assert np.linalg.norm(base[:, [0, 2]].mean(0) - [0.0, 0.05]) < 0.05  # the pose's translation
+    leaves = v[f[labels == 1].ravel()]
+    assert leaves[:, 1].min() > 0.3 * np.ptp(v[:, 1])  # foliage in the crown, a bare trunk below
+    # seeded: the same arguments give the same tree, another seed another one
+    args = case["source"]["args"]
+    a, b = RECIPES["space_colonisation_tree"](**args), RECIPES["space_colonisation_tree"](**{**args, "seed": 6})
+    assert np.array_equal(a[0], RECIPES["space_colonisation_tree"](**args)[0])
+    assert len(a[0]) != len(b[0]) or not np.allclose(a[0], b[0])
+
+
+@pytest.fixture(scope="module")
+def tree_run(tmp_path_factory, tree_case):
+    """One smoke-profile GA run on the tiny tree (statistics collected in the run)."""
+    from ipm.methods import METHODS
+
+    out = tmp_path_factory.mktemp("ga") / "tree"
+    info = METHODS["ga"](tree_case / "transforms.json", out, generator="trees", profile="smoke", seed=2,
+                         progress=False, n_input_views=1)
+    return out, info
+
+
+def test_ga_on_a_tree_writes_a_placed_two_part_mesh(tree_run, tree_case):
+    from ipm.generators import get_generator
+    from ipm.methods import METHODS, row_label
+    from ipm.metrics import silhouette_iou
+    from ipm.optim.ga import GA_PROFILES
+    from ipm.reference_lines import bounding_sphere
+
+    out, info = tree_run
+    assert METHODS["ga"].uses_generator and row_label("ga", 1) == "ours (GA, 1 view)"
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.ply", "params.json", "timing.json",
+                                                     "trace.csv"]
+    params = json.loads((out / "params.json").read_text())
+    assert params == json.loads(json.dumps(info))
+    assert list(params["params"]) == list(get_generator("trees").spec.names)
+    assert params["loss"] == "tree" and params["parts"] == ["branch", "foliage"]
+    trace = pd.read_csv(out / "trace.csv")
+    assert len(trace) == params["evaluations"] == GA_PROFILES["smoke"].budget
+    assert trace["best"].is_monotonic_decreasing and trace["best"].iloc[-1] < trace["loss"].iloc[0]
+    assert json.loads((out / "timing.json").read_text())["seconds"] > 0
+    mesh = load_mesh(out / "mesh.ply")
+    from ipm.io.mesh import part_labels
+
+    assert set(np.unique(part_labels(mesh))) == {0, 1}
+    assert abs(mesh.bounds[0][1]) < 0.02  # stands on the ground plane
+    scene = trimesh.load(out / "mesh.glb")
+    assert {"branch", "foliage"} <= set(scene.graph.nodes)
+    ref = load_mesh(tree_case / "reference.ply")
+    assert 0.7 < np.ptp(mesh.vertices[:, 1]) / np.ptp(ref.vertices[:, 1]) < 1.4  # the anchor's height
+    # silhouette_iou, not evaluate_meshes: its volumetric IoU splits the tree into its ~10^4 closed
+    # parts, each deep-copying the PLY's face table (memory) and casting every grid point (time)
+    iou = silhouette_iou(ref, mesh, n_views=16, res=64)["iou_mean"]
+    sphere = silhouette_iou(ref, bounding_sphere(ref), n_views=16, res=64)["iou_mean"]
+    assert iou > sphere + 0.1, (iou, sphere)
+
+
+def test_ga_is_deterministic(tmp_path, tree_run, tree_case):
+    from ipm.methods.ga import run_ga
+
+    out, info = tree_run
+    again = run_ga(tree_case / "transforms.json", tmp_path / "again", profile="smoke", seed=2, progress=False,
+                   n_input_views=1)
+    assert again == info
+    assert (tmp_path / "again" / "params.json").read_text() == (out / "params.json").read_text()
+
+
+def test_statistics_stage_feeds_the_ga(tmp_path, tree_case):
+    from ipm.methods.ga import collect_generator_statistics, run_ga
+    from ipm.optim.ga import GeneStatistics
+
+    path = tmp_path / "stats.json"
+    collect_generator_statistics("trees", path, profile="smoke", seed=1)
+    stats = GeneStatistics.load(path)
+    assert stats.names[-4:] == ("pose_yaw", "pose_lateral", "pose_depth", "pose_scale")
+    assert stats.n_samples == 24
+    info = run_ga(tree_case / "transforms.json", tmp_path / "rec", profile="smoke", progress=False,
+                  n_input_views=1, statistics=path, ga_settings={"budget": 40, "initial_population": 8})
+    assert info["statistics"] == str(path) and info["evaluations"] == 40
+    # statistics of another generator's genome are refused
+    collect_generator_statistics("dishes", tmp_path / "dishes.json", profile="smoke")
+    with pytest.raises(UserError, match="GA statistics"):
+        run_ga(tree_case / "transforms.json", tmp_path / "bad", profile="smoke", progress=False,
+               statistics=tmp_path / "dishes.json")
+    assert not (tmp_path / "bad").exists()
+
+
+def test_ga_on_a_cup_uses_silhouettes(tmp_path, tiny_case):
+    from ipm.methods.ga import run_ga
+    from ipm.metrics import silhouette_iou
+    from ipm.reference_lines import bounding_sphere
+
+    info = run_ga(tiny_case / "transforms.json", tmp_path / "cup", generator="dishes", profile="smoke", seed=0,
+                  progress=False, n_input_views=1)
+    assert info["loss"] == "silhouette" and info["generator"] == "dishes"
+    assert (tmp_path / "cup" / "mesh.glb").is_file()
+    mesh = load_mesh(tmp_path / "cup" / "mesh.ply")
+    assert abs(mesh.bounds[0][1]) < 0.02
+    ref = load_mesh(tiny_case / "reference.ply")
+    iou = silhouette_iou(ref, mesh, n_views=16, res=64)["iou_mean"]
+    sphere = silhouette_iou(ref, bounding_sphere(ref), n_views=16, res=64)["iou_mean"]
+    assert iou > sphere, (iou, sphere)
+
+
+def test_bad_input_is_a_user_error(tmp_path, tree_case, tiny_case):
+    from ipm.methods.ga import get_options, run_ga
+
+    with pytest.raises(UserError, match="unknown generator"):
+        run_ga(tree_case / "transforms.json", tmp_path / "a", generator="castles", profile="smoke")
+    with pytest.raises(UserError, match="unknown GA option"):
+        get_options("smoke", impostors=64)
+    with pytest.raises(UserError, match="tree loss"):
+        run_ga(tiny_case / "transforms.json", tmp_path / "b", generator="dishes", profile="smoke", loss="tree")
+    case = tmp_path / "case"
+    shutil.copytree(tree_case, case)
+    (case / "semantic" / "000.png").unlink()
+    with pytest.raises(UserError, match="label image not found"):
+        run_ga(case / "transforms.json", tmp_path / "c", profile="smoke")
+    # without semantic paths the labels come from the RGB; without the RGB either, a clear error
+    data = json.loads((case / "transforms.json").read_text())
+    for fr in data["frames"]:
+        del fr["semantic_path"]
+    (case / "transforms.json").write_text(json.dumps(data))
+    (case / "rgb" / "000.png").unlink()
+    with pytest.raises(UserError, match="RGB image not found"):
+        run_ga(case / "transforms.json", tmp_path / "d", profile="smoke")
+    assert not any((tmp_path / n).exists() for n in "abcd")
+
+
+def test_turned_rays_show_the_object_turned_about_its_base():
+    """The symmetry prior's views: rays turned by -a about the base's vertical = the mesh turned by a."""
+    from ipm.methods.ga import _turned_rays, _yaw_matrix, mirror_about
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.semantic import LabelCaster, pixel_rays
+
+    box = trimesh.creation.box([0.6, 1.0, 0.2])
+    box.apply_translation([0.5, 0.5, 0.3])  # off the axis, flat: every quarter turn looks different
+    base = np.array([0.2, 0.0, 0.1])
+    c2w = orbit_camera(np.array([0.2, 0.5, 0.1]), 4.0, 20.0, 10.0)
+    rays = pixel_rays(c2w, 0.7, 48, 48)
+    turned = LabelCaster(box.vertices, box.faces).labels(_turned_rays(rays, base, 4))[0]
+    for k in range(4):
+        rot = _yaw_matrix(np.pi / 2 * k)
+        moved = (box.vertices - base) @ rot.T + base
+        direct = LabelCaster(moved, box.faces).labels(rays)[0]
+        assert (turned[k] != direct).mean() < 0.003, k
+    assert len({turned[k].tobytes() for k in range(4)}) == 4
+    # the outline seen from behind: mirrored about the root's column
+    mask = np.zeros((4, 8), bool)
+    mask[:, 1:3] = True
+    assert np.array_equal(mirror_about(mask, 4.0), mask[:, ::-1])
+    assert mirror_about(mask, 3.0)[0].tolist() == [False, False, False, True, True, False, False, False]
