@@ -7,8 +7,8 @@ pose genes (:data:`POSE_GENES`), all in [0, 1]:
 - ``pose_yaw``: rotation about +y, ``2 pi u``;
 - ``pose_lateral``, ``pose_depth``: offsets of the object's base along the input camera's right
   and forward directions projected onto the ground, ``(2 u - 1) * LATERAL`` (``DEPTH``) times the
-  anchor height (trees; ``OTHER_OFFSETS`` for others), around the anchor of :func:`anchor`
-  (ground contact and height from the first view's mask);
+  anchor height, around the anchor of :func:`ipm.problem.estimate_anchor` (ground contact and
+  height from the first view's mask);
 - ``pose_scale``: the object's world height relative to the anchor height, log-uniform over
   ``SCALE_RANGE``.
 
@@ -60,21 +60,16 @@ from ipm.render.cameras import orbit_camera
 
 POSE_GENES = ("pose_yaw", "pose_lateral", "pose_depth", "pose_scale")
 """Names of the pose genes appended to the generator's parameters."""
-LATERAL = 0.03
+LATERAL = 0.05
 """Half range of the sideways offset of the base, in anchor heights (the anchor's column is the
 base's own)."""
-DEPTH = 0.03
-"""Half range of the offset of the base along the view direction, in anchor heights. One view
-barely sees depth (a tree 5 % of its height further away is 2 % smaller in the image), so the
-search trades it for outline details when it may: with a range of 0.25 (0.1) a poplar fit stood
-0.12 (0.09) off along the ray, invisible in the input view, at 64-view IoU 0.47 (0.63) where its
-shape alone was worth 0.8. The anchor's ground contact (the trunk's lowest pixel, pushed back by
-half the trunk's width) is the better depth cue, so the genes only absorb its pixel error."""
+DEPTH = 0.1
+"""Half range of the offset of the base along the view direction, in anchor heights: a pixel of
+error in the lowest mask row moves the anchor by about 3 % of the height at 10 degrees elevation.
+Wider ranges let the search trade depth for outline details: with 0.25 a poplar fit stood 0.12 off
+along the ray, invisible in the input view, and scored 64-view IoU 0.47 instead of 0.8."""
 SCALE_RANGE = (0.8, 1.25)
 """World height of the object relative to the anchor height (log-uniform gene)."""
-OTHER_OFFSETS = (0.1, 0.2)
-"""(lateral, depth) half ranges for generators other than trees: the anchor of a cup is pushed
-back from its front contact by half the width just above the base, a rougher guess than a trunk's."""
 TREE_PARTS = ("branch", "foliage")
 """Part names of generators fitted with the tree loss."""
 
@@ -223,7 +218,6 @@ class Genome:
         self.anchor_h = float(anchor_h)
         self.right, self.fwd = _ground_axes(np.asarray(c2w0, np.float64))
         self.tree = generator.part_names == TREE_PARTS
-        self.lateral, self.depth = (LATERAL, DEPTH) if self.tree else OTHER_OFFSETS
 
     def params(self, g: np.ndarray) -> np.ndarray:
         """Physical generator parameters of genome ``g`` (the unit cube mapped into the generator's
@@ -236,8 +230,8 @@ class Genome:
         """Yaw (radians), base position (x, 0, z) and world height of genome ``g``."""
         p = np.clip(np.asarray(g, np.float64)[self.n_shape:], 0.0, 1.0)
         yaw = 2.0 * math.pi * p[0]
-        base = (self.anchor_t + (2 * p[1] - 1) * self.lateral * self.anchor_h * self.right
-                + (2 * p[2] - 1) * self.depth * self.anchor_h * self.fwd)
+        base = (self.anchor_t + (2 * p[1] - 1) * LATERAL * self.anchor_h * self.right
+                + (2 * p[2] - 1) * DEPTH * self.anchor_h * self.fwd)
         lo, hi = np.log(SCALE_RANGE)
         height = self.anchor_h * math.exp(lo + p[3] * (hi - lo))
         return yaw, base, height
