@@ -27,11 +27,20 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")
     r.add_argument("--views", required=True, help="transforms.json with masks")
     r.add_argument("--out", required=True, help="output directory")
-    r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam)")
+    r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam) or ga (tree-structured GA)")
     r.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
     r.add_argument("--seed", type=int, default=0, help="random seed")
     r.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
+    r.add_argument("--prepared", default=None,
+                   help="the method's preparation file from ipm prepare (ga: gene statistics; default: made in the run)")
+
+    pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics)")
+    pr.add_argument("method", help="registered method name with a preparation stage (ga)")
+    pr.add_argument("--generator", required=True, help="generator name (e.g. trees)")
+    pr.add_argument("--out", required=True, help="output file (JSON)")
+    pr.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
+    pr.add_argument("--seed", type=int, default=0, help="random seed")
 
     b = sub.add_parser("baseline", help="run a baseline (diffsdf, visual_hull, colmap_known, colmap_sfm)")
     b.add_argument("name", help="registered baseline name")
@@ -56,7 +65,7 @@ def _parser() -> argparse.ArgumentParser:
     lr.add_argument("--reference", required=True, help="reference mesh (PLY)")
     lr.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json)")
 
-    for sp in (s, r, b, e, lr):
+    for sp in (s, r, pr, b, e, lr):
         sp.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU threads")
         sp.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Mitsuba/JAX device")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -77,15 +86,35 @@ def _run(args) -> int:
                    layout=args.layout)
     elif args.command == "reconstruct":
         from ipm.generators import GENERATORS
-        from ipm.methods import METHODS
+        from ipm.methods import METHODS, check_generator
         from ipm.runtime import set_mitsuba_variant
 
         GENERATORS[args.generator]  # fail fast on unknown names, before any rendering
         method = METHODS[args.method]
+        if not method.uses_generator:
+            raise UserError(f"{args.method!r} is a baseline: use ipm baseline {args.method}")
+        check_generator(args.method, args.generator)
+        extra = {}
+        if args.prepared is not None:
+            if method.prepare is None:
+                raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
+            extra["prepared"] = args.prepared
         set_mitsuba_variant(args.device, args.threads)
         info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
-                      progress=not args.quiet, n_input_views=args.n_input_views)
+                      progress=not args.quiet, n_input_views=args.n_input_views, **extra)
         print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
+    elif args.command == "prepare":
+        from ipm.generators import GENERATORS
+        from ipm.methods import METHODS, check_generator
+
+        GENERATORS[args.generator]
+        method = METHODS[args.method]
+        if method.prepare is None:
+            raise UserError(f"method {args.method!r} has no preparation stage")
+        check_generator(args.method, args.generator)
+        info = method.prepare(args.generator, args.out, profile=args.profile, seed=args.seed,
+                              progress=not args.quiet)
+        print(f"{args.out}: {args.method} preparation for {args.generator} in {info['seconds']:.1f} s")
     elif args.command == "baseline":
         from ipm.methods import METHODS
         from ipm.runtime import set_mitsuba_variant

@@ -34,7 +34,7 @@ def build_table(metrics: list[str], table_csv: str, wide_csv: str) -> pd.DataFra
     rank = df["kind"].map({k: i for i, k in enumerate(KINDS)}).fillna(len(KINDS))
     df = df.iloc[np.argsort(rank.to_numpy(), kind="stable")]  # kinds in KINDS order, rows as configured
     wide = df.pivot(index="label", columns="case", values="iou_mean")  # failed runs stay as NaN ("-")
-    wide = wide.loc[df["label"].drop_duplicates()]
+    wide = wide.loc[df["label"].drop_duplicates(), df["case"].drop_duplicates()]  # config order
     with atomic_path(table_csv) as tmp:
         df.to_csv(tmp, index=False, float_format="%.4f")
     with atomic_path(wide_csv) as tmp:

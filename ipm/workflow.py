@@ -46,14 +46,25 @@ def reference_step(case: str, reference: str, log=None):
         write_reference(case, Path(reference).parent)
 
 
+def prepare_step(method: str, generator: str, out: str, profile: str, seed: int, threads: int = 1, log=None):
+    """A method's per-generator preparation (the GA's gene statistics), cached by the DAG."""
+    with _logged(log, threads):
+        from ipm.methods import METHODS
+
+        METHODS[method].prepare(generator, out, profile=profile, seed=seed, progress=True)
+
+
 def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, profile: str, seed: int,
-                     n_input_views: int, threads: int = 1, log=None):
-    """One reconstruction, ours or a baseline (the generator goes only to methods that take one)."""
+                     n_input_views: int, prepared: str | None = None, threads: int = 1, log=None):
+    """One reconstruction, ours or a baseline (the generator goes only to methods that take one,
+    ``prepared`` only to methods with a preparation stage)."""
     with _logged(log, threads, mitsuba=True):
         from ipm.methods import METHODS
 
         fn = METHODS[method]
         extra = {"generator": generator} if fn.uses_generator else {}
+        if prepared:
+            extra["prepared"] = prepared
         fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra)
 
 

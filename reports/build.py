@@ -52,13 +52,20 @@ def _iou_bars(df: pd.DataFrame):
     return fig
 
 
-def _trace_plot(trace: pd.DataFrame):
+def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
+    """Loss per evaluation: the diff path's stages and resolutions, or the GA's tree levels
+    (leaves 0, root highest) with the best so far."""
     fig, ax = plt.subplots(figsize=(6, 2.6))
-    for (stage, res), part in trace.groupby(["stage", "res"], sort=False):
-        ax.plot(part["eval"], part["loss"], ".", ms=2, label=f"{stage} {res}px")
+    if "stage" in trace:
+        for (stage, res), part in trace.groupby(["stage", "res"], sort=False):
+            ax.plot(part["eval"], part["loss"], ".", ms=2, label=f"{stage} {res}px")
+    else:
+        for level, part in trace.groupby("level"):
+            ax.plot(part["eval"], part["loss"], ".", ms=2, label=f"GA level {level}")
+        ax.plot(trace["eval"], trace["best"], "k-", lw=1, label="best")
     ax.set_yscale("log")
     ax.set_xlabel("evaluation")
-    ax.set_ylabel("silhouette loss")
+    ax.set_ylabel(f"{loss} loss")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     return fig
@@ -100,15 +107,19 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
             if (recon / "parts.png").exists():
                 parts.append("<p class='note'>reference (top) and reconstruction (bottom), one colour per part</p>"
                              + _img(recon / "parts.png"))
+            info = json.loads((recon / "params.json").read_text()) if (recon / "params.json").exists() else None
             if (recon / "trace.csv").exists():
-                parts.append(_img(fig=_trace_plot(pd.read_csv(recon / "trace.csv"))))
-            if (recon / "params.json").exists():
-                info = json.loads((recon / "params.json").read_text())
+                loss = (info or {}).get("loss", "silhouette")
+                parts.append(_img(fig=_trace_plot(pd.read_csv(recon / "trace.csv"), loss)))
+            if info is not None:
                 pose = {k: (round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v])
                         for k, v in info["pose"].items()}
-                handle = info["params"].get("has_handle")
-                parts.append(f"<p class='note'>pose {html.escape(json.dumps(pose))}; has_handle {handle}; "
-                             f"{info['evaluations']} evaluations, final loss {info['final_loss']:.5f}</p>")
+                extra = [f"{k} {info['params'][k]}" for k in ("has_handle",) if k in info["params"]]
+                if "branch_graph_vertices" in info:
+                    extra.append(f"branch graph {info['branch_graph_vertices']} vertices")
+                parts.append(f"<p class='note'>pose {html.escape(json.dumps(pose))}; "
+                             + "".join(f"{html.escape(e)}; " for e in extra)
+                             + f"{info['evaluations']} evaluations, final loss {info['final_loss']:.5f}</p>")
         parts.append("</div>")
     parts.append("</body></html>")
     with atomic_path(out_html) as tmp:

@@ -74,3 +74,31 @@ def test_evaluate_and_reference_line_commands(tmp_path, tiny_case):
     assert res.returncode == 0, res.stderr
     m = json.loads((tmp_path / "m.json").read_text())
     assert 0.8 < m["iou_mean"] < 1.0 and m["viou"] < 1.0  # the hull fills the cup and its handle hole
+
+
+def test_methods_refuse_generators_and_stages_they_cannot_use(tmp_path, tiny_case):
+    views = str(tiny_case / "transforms.json")
+    res = ipm("reconstruct", "--method", "diff", "--generator", "trees", "--views", views, "--out", str(tmp_path / "r"))
+    assert "needs a differentiable generator; 'trees'" in _one_line_error(res)
+    res = ipm("reconstruct", "--method", "diffsdf", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"))
+    assert "is a baseline" in _one_line_error(res)
+    res = ipm("reconstruct", "--method", "diff", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"),
+              "--prepared", str(tmp_path / "x.json"))
+    assert "no preparation stage" in _one_line_error(res)
+    res = ipm("prepare", "diff", "--generator", "dishes", "--out", str(tmp_path / "p.json"))
+    assert "no preparation stage" in _one_line_error(res)
+    res = ipm("prepare", "ga", "--generator", "teapot", "--out", str(tmp_path / "p.json"))
+    assert "unknown generator 'teapot'" in _one_line_error(res)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "p.json").exists()
+
+
+def test_prepare_writes_statistics_the_ga_reads(tmp_path):
+    from ipm.optim.ga import GeneStatistics
+
+    out = tmp_path / "stats" / "trees.json"
+    res = ipm("prepare", "ga", "--generator", "trees", "--profile", "smoke", "--out", str(out), "--quiet",
+              "--threads", "1")
+    assert res.returncode == 0, res.stderr
+    stats = GeneStatistics.load(out)
+    assert stats.n_samples == 24 and stats.names[-1] == "pose_scale"
+    assert [p.name for p in out.parent.iterdir()] == ["trees.json"]  # nothing half-written beside it

@@ -124,13 +124,24 @@ def test_space_colonisation_tree_stands_with_both_parts():
 
 
 @pytest.fixture(scope="module")
-def tree_run(tmp_path_factory, tree_case):
-    """One smoke-profile GA run on the tiny tree (statistics collected in the run)."""
+def tree_stats(tmp_path_factory):
+    """The statistics stage of the trees generator at the smoke profile, as the pipeline caches it."""
+    from ipm.methods.ga import collect_generator_statistics
+
+    path = tmp_path_factory.mktemp("stats") / "trees.json"
+    info = collect_generator_statistics("trees", path, profile="smoke", seed=1)
+    assert info["samples"] == 24 and info["seconds"] > 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def tree_run(tmp_path_factory, tree_case, tree_stats):
+    """One smoke-profile GA run on the tiny tree with the cached statistics, as the pipeline runs it."""
     from ipm.methods import METHODS
 
     out = tmp_path_factory.mktemp("ga") / "tree"
     info = METHODS["ga"](tree_case / "transforms.json", out, generator="trees", profile="smoke", seed=2,
-                         progress=False, n_input_views=1)
+                         progress=False, n_input_views=1, prepared=tree_stats)
     return out, info
 
 
@@ -166,36 +177,43 @@ def test_ga_on_a_tree_writes_a_placed_two_part_mesh(tree_run, tree_case):
     # parts, each deep-copying the PLY's face table (memory) and casting every grid point (time)
     iou = silhouette_iou(ref, mesh, n_views=16, res=64)["iou_mean"]
     sphere = silhouette_iou(ref, bounding_sphere(ref), n_views=16, res=64)["iou_mean"]
+    # 120 evaluations on a 96 px view are a smoke budget: over seeds 0-5 the margin is 0.04-0.19
+    # (seed 2: 0.17); the issue's targets are measured on the default profile in the DAG
     assert iou > sphere + 0.1, (iou, sphere)
 
 
-def test_ga_is_deterministic(tmp_path, tree_run, tree_case):
+def test_ga_is_deterministic(tmp_path, tree_case, tree_stats):
     from ipm.methods.ga import run_ga
 
-    out, info = tree_run
-    again = run_ga(tree_case / "transforms.json", tmp_path / "again", profile="smoke", seed=2, progress=False,
-                   n_input_views=1)
-    assert again == info
-    assert (tmp_path / "again" / "params.json").read_text() == (out / "params.json").read_text()
+    kw = dict(profile="smoke", seed=4, progress=False, n_input_views=1, prepared=tree_stats,
+              ga_settings={"budget": 40, "initial_population": 8})
+    a = run_ga(tree_case / "transforms.json", tmp_path / "a", **kw)
+    b = run_ga(tree_case / "transforms.json", tmp_path / "b", **kw)
+    assert a == b and a["evaluations"] == 40 and a["statistics"] == str(tree_stats)
+    assert (tmp_path / "a" / "params.json").read_text() == (tmp_path / "b" / "params.json").read_text()
+    assert (tmp_path / "a" / "trace.csv").read_text() == (tmp_path / "b" / "trace.csv").read_text()
+    c = run_ga(tree_case / "transforms.json", tmp_path / "c", **{**kw, "seed": 5})
+    assert c["genes"] != a["genes"]
+    # without a statistics file the run collects its own first (2 * 24 more evaluations)
+    d = run_ga(tree_case / "transforms.json", tmp_path / "d", **{**kw, "prepared": None})
+    assert d["statistics"] == "collected" and d["evaluations"] == 40
+    timing = json.loads((tmp_path / "d" / "timing.json").read_text())
+    assert timing["statistics_seconds"] > 0 and timing["seconds"] > timing["search_seconds"]
 
 
-def test_statistics_stage_feeds_the_ga(tmp_path, tree_case):
+def test_statistics_are_checked_against_the_genome(tmp_path, tree_case, tree_stats):
     from ipm.methods.ga import collect_generator_statistics, run_ga
     from ipm.optim.ga import GeneStatistics
 
-    path = tmp_path / "stats.json"
-    collect_generator_statistics("trees", path, profile="smoke", seed=1)
-    stats = GeneStatistics.load(path)
+    stats = GeneStatistics.load(tree_stats)
     assert stats.names[-4:] == ("pose_yaw", "pose_lateral", "pose_depth", "pose_scale")
-    assert stats.n_samples == 24
-    info = run_ga(tree_case / "transforms.json", tmp_path / "rec", profile="smoke", progress=False,
-                  n_input_views=1, statistics=path, ga_settings={"budget": 40, "initial_population": 8})
-    assert info["statistics"] == str(path) and info["evaluations"] == 40
-    # statistics of another generator's genome are refused
     collect_generator_statistics("dishes", tmp_path / "dishes.json", profile="smoke")
     with pytest.raises(UserError, match="GA statistics"):
         run_ga(tree_case / "transforms.json", tmp_path / "bad", profile="smoke", progress=False,
-               statistics=tmp_path / "dishes.json")
+               prepared=tmp_path / "dishes.json")
+    with pytest.raises(UserError, match="not found"):
+        run_ga(tree_case / "transforms.json", tmp_path / "bad", profile="smoke", progress=False,
+               prepared=tmp_path / "missing.json")
     assert not (tmp_path / "bad").exists()
 
 

@@ -65,6 +65,26 @@ def test_occupancy_of_intersecting_components_is_their_union():
     assert occupancy(m, pts).tolist() == [True, True, True, False, False]
 
 
+def test_many_components_share_scenes_and_keep_their_union():
+    """A tree-like mesh: 64 small disjoint cubes (one scene for all) inside two overlapping boxes."""
+    from ipm.metrics.volume import disjoint_groups
+
+    small = [trimesh.creation.box(extents=[0.1] * 3).apply_translation([x, y, 3.0])
+             for x in np.linspace(-1.5, 1.5, 8) for y in np.linspace(-1.5, 1.5, 8)]
+    m = trimesh.util.concatenate([box(), box(0.5), *small])
+    parts = m.split(only_watertight=False)
+    lo, hi = np.array([p.bounds[0] for p in parts]), np.array([p.bounds[1] for p in parts])
+    groups = disjoint_groups(lo, hi)
+    assert sorted(np.concatenate(groups).tolist()) == list(range(len(parts))) and len(groups) == 2
+    for g in groups:  # no two boxes of a group overlap
+        for i in g:
+            for j in g:
+                assert i == j or not np.all((lo[i] <= hi[j]) & (hi[i] >= lo[j]))
+    pts = np.array([[0.25, 0.01, 0.02], [0.9, 0.0, 0.0], [1.5, 1.5, 3.0], [-1.5, 0.2143, 3.0],
+                    [1.5, 1.5, 3.2], [0.0, 0.0, 3.0], [0.25, 0.7, 0.0]])
+    assert occupancy(m, pts).tolist() == [True, True, True, True, False, False, False]
+
+
 def test_fibonacci_cameras_look_at_centre_from_fixed_distance():
     centre, radius = np.array([1.0, 2.0, -3.0]), 0.7
     cams = fibonacci_cameras(centre, radius, n_views=64, fov_deg=40.0)

@@ -49,16 +49,42 @@ def test_unknown_method_is_refused(tmp_path):
     assert res.returncode != 0 and "unknown method 'nerf'" in res.stdout + res.stderr
 
 
+def test_diff_on_a_tree_case_is_refused(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1}]\n")
+    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
+    out = res.stdout + res.stderr
+    assert res.returncode != 0 and "case tree_1: method 'diff' needs a differentiable generator" in out
+    bad.write_text("cases: [cup_1]\nmethods: [{name: ga, views: 1, cases: [tree_1]}]\n")
+    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
+    assert res.returncode != 0 and "lists case 'tree_1', which is not in cases" in res.stdout + res.stderr
+
+
+def test_rows_run_on_their_cases_and_the_ga_statistics_once_per_generator(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1}]\n")
+    res = snakemake("-n", "--cores", "1", "--configfile", str(cfg), "--directory", str(tmp_path))
+    out = res.stdout + res.stderr
+    assert res.returncode == 0, out
+    assert "results/reconstruct/diff_1v/cup_1/mesh.ply" in out and "diff_1v/tree_1" not in out
+    for gen in ("dishes", "trees"):
+        assert out.count(f"output: results/prepare/ga/{gen}.json") == 1
+    assert "results/reconstruct/ga_1v/tree_1/mesh.ply" in out and "results/reconstruct/ga_1v/cup_1/mesh.ply" in out
+
+
 @pytest.mark.slow
 def test_smoke_run_of_the_whole_dag(tmp_path):
     res = snakemake("--cores", "2", "--configfile", str(ROOT / "pipelines/config/smoke.yaml"),
                     "--directory", str(tmp_path))
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     table = pd.read_csv(tmp_path / "results/table.csv")
-    assert set(table["case"]) == {"cup_1", "cup_ext"}
-    assert set(table["label"]) == {"ours (diff, 1 view)", "diffSDF-style (2 views)", "COLMAP known poses (16 views)",
-                                   "visual hull (2 views)", "convex hull (reference)", "bounding sphere (reference)"}
+    assert set(table["case"]) == {"cup_1", "cup_ext", "tree_1"}
+    assert set(table["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "diffSDF-style (2 views)",
+                                   "COLMAP known poses (16 views)", "visual hull (2 views)",
+                                   "convex hull (reference)", "bounding sphere (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
+    assert len(table) == 3 * 7 - 1  # the diff path skips the tree
+    assert set(table.loc[table["label"] == "ours (diff, 1 view)", "case"]) == {"cup_1", "cup_ext"}
     # every row has metrics, or no metrics and the reason it failed (COLMAP on tiny images)
     failed = table["note"].fillna("").str.startswith("failed: ")
     assert (table.loc[failed, "label"] == "COLMAP known poses (16 views)").all()
@@ -71,6 +97,9 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     html = (tmp_path / "results/report/index.html").read_text()
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
     assert (tmp_path / "results/reconstruct/diff_1v/cup_1/parts.png").is_file()
+    assert (tmp_path / "results/reconstruct/ga_1v/tree_1/parts.png").is_file()
+    assert (tmp_path / "results/prepare/ga/trees.json").is_file()
     wide = pd.read_csv(tmp_path / "results/table_iou.csv", index_col=0)
-    assert list(wide.columns) == ["cup_1", "cup_ext"]
+    assert list(wide.columns) == ["cup_1", "cup_ext", "tree_1"]
+    assert wide.loc["ours (diff, 1 view)", "tree_1"] != wide.loc["ours (diff, 1 view)", "tree_1"]  # NaN: "-"
     assert (tmp_path / "results/synth/cup_1/ring16/transforms.json").is_file()

@@ -18,7 +18,7 @@ from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
-from ipm.methods import method
+from ipm.methods import check_generator, method
 from ipm.optim.memetic import Individual, adam_steps, memetic
 from ipm.problem import POSE_NAMES, Problem, estimate_anchor
 from ipm.profiles import DiffProfile, get_profile
@@ -141,11 +141,12 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     return z, trace
 
 
-@method("diff", "ours (diff, {views})", layout="hemi", uses_generator=True)
+@method("diff", "ours (diff, {views})", layout="hemi", uses_generator=True, differentiable_only=True)
 def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
              seed: int = 0, progress: bool = True, n_input_views: int | None = None, **overrides) -> dict:
     """``ipm reconstruct --method diff``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""
     t0 = time.perf_counter()
+    check_generator("diff", generator)
     gen = get_generator(generator)
     prof = get_profile(profile, **overrides)
     views = load_views(views_path)

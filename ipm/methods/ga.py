@@ -7,8 +7,8 @@ pose genes (:data:`POSE_GENES`), all in [0, 1]:
 - ``pose_yaw``: rotation about +y, ``2 pi u``;
 - ``pose_lateral``, ``pose_depth``: offsets of the object's base along the input camera's right
   and forward directions projected onto the ground, ``(2 u - 1) * LATERAL`` (``DEPTH``) times the
-  anchor height, around the anchor of :func:`ipm.problem.estimate_anchor` (ground contact and
-  height from the first view's mask);
+  anchor height (trees; ``OTHER_OFFSETS`` for others), around the anchor of :func:`anchor`
+  (ground contact and height from the first view's mask);
 - ``pose_scale``: the object's world height relative to the anchor height, log-uniform over
   ``SCALE_RANGE``.
 
@@ -60,16 +60,21 @@ from ipm.render.cameras import orbit_camera
 
 POSE_GENES = ("pose_yaw", "pose_lateral", "pose_depth", "pose_scale")
 """Names of the pose genes appended to the generator's parameters."""
-LATERAL = 0.05
+LATERAL = 0.03
 """Half range of the sideways offset of the base, in anchor heights (the anchor's column is the
 base's own)."""
-DEPTH = 0.1
-"""Half range of the offset of the base along the view direction, in anchor heights: a pixel of
-error in the lowest mask row moves the anchor by about 3 % of the height at 10 degrees elevation.
-Wider ranges let the search trade depth for outline details: with 0.25 a poplar fit stood 0.12 off
-along the ray, invisible in the input view, and scored 64-view IoU 0.47 instead of 0.8."""
+DEPTH = 0.03
+"""Half range of the offset of the base along the view direction, in anchor heights. One view
+barely sees depth (a tree 5 % of its height further away is 2 % smaller in the image), so the
+search trades it for outline details when it may: with a range of 0.25 (0.1) a poplar fit stood
+0.12 (0.09) off along the ray, invisible in the input view, at 64-view IoU 0.47 (0.63) where its
+shape alone was worth 0.8. The anchor's ground contact (the trunk's lowest pixel, pushed back by
+half the trunk's width) is the better depth cue, so the genes only absorb its pixel error."""
 SCALE_RANGE = (0.8, 1.25)
 """World height of the object relative to the anchor height (log-uniform gene)."""
+OTHER_OFFSETS = (0.1, 0.2)
+"""(lateral, depth) half ranges for generators other than trees: the anchor of a cup is pushed
+back from its front contact by half the width just above the base, a rougher guess than a trunk's."""
 TREE_PARTS = ("branch", "foliage")
 """Part names of generators fitted with the tree loss."""
 
@@ -89,8 +94,8 @@ class GAOptions:
     """Stripes of the tree similarity (over the object's height)."""
     regularisers: tuple[str, ...] = ("leaf_density",)
     """Multipliers of ``ipm.losses.tree`` (trees). ``branch_density`` is left out by default: a
-    crowned tree shows a few dozen branch pixels, and their ratio is noise (0.67-0.87 between a
-    tree and the same tree with one unrelated gene changed)."""
+    crowned tree shows a few dozen branch pixels, and their ratio is noise (0.67-0.81 for the true
+    tree_2 and copies of it with one unrelated gene changed)."""
     graph_vertices: int | None = None
     """Target branch-graph vertex count (the paper's recommended regulariser); None: off."""
     placement: str = "mask"
@@ -218,6 +223,7 @@ class Genome:
         self.anchor_h = float(anchor_h)
         self.right, self.fwd = _ground_axes(np.asarray(c2w0, np.float64))
         self.tree = generator.part_names == TREE_PARTS
+        self.lateral, self.depth = (LATERAL, DEPTH) if self.tree else OTHER_OFFSETS
 
     def params(self, g: np.ndarray) -> np.ndarray:
         """Physical generator parameters of genome ``g`` (the unit cube mapped into the generator's
@@ -230,8 +236,8 @@ class Genome:
         """Yaw (radians), base position (x, 0, z) and world height of genome ``g``."""
         p = np.clip(np.asarray(g, np.float64)[self.n_shape:], 0.0, 1.0)
         yaw = 2.0 * math.pi * p[0]
-        base = (self.anchor_t + (2 * p[1] - 1) * LATERAL * self.anchor_h * self.right
-                + (2 * p[2] - 1) * DEPTH * self.anchor_h * self.fwd)
+        base = (self.anchor_t + (2 * p[1] - 1) * self.lateral * self.anchor_h * self.right
+                + (2 * p[2] - 1) * self.depth * self.anchor_h * self.fwd)
         lo, hi = np.log(SCALE_RANGE)
         height = self.anchor_h * math.exp(lo + p[3] * (hi - lo))
         return yaw, base, height
@@ -276,10 +282,15 @@ class Target:
     """One reference impostor: camera, window in the view's pixels and the reduced labels."""
 
     c2w: np.ndarray
+    """Camera-to-world matrix (4, 4) of the view, OpenGL convention."""
     fov_x: float
+    """Horizontal field of view of the view (radians)."""
     width: int
+    """Width of the view in pixels."""
     height: int
+    """Height of the view in pixels."""
     window: tuple[float, float, float, float]
+    """The impostor's region of the view: (x0, y0, x1, y1) in pixels."""
     labels: np.ndarray
     """(impostor, impostor) uint8 reference labels (0 background, 1 + part)."""
     stats: object = None
@@ -287,6 +298,7 @@ class Target:
     mirror: np.ndarray | None = None
     """The reference's silhouette mirrored about its root (the outline seen from behind)."""
     rays: np.ndarray = field(default=None, repr=False)
+    """The impostor's rays (impostor, impostor, supersample**2, 6), cast for every candidate."""
 
 
 def make_target(labels: np.ndarray, c2w: np.ndarray, fov_x: float, options: GAOptions) -> Target:
@@ -564,10 +576,10 @@ def reconstruct(objective: Objective, settings: GASettings, stats: GeneStatistic
     return ga.minimize(objective, progress=progress)
 
 
-@method("ga", "ours (GA, {views})", layout="hemi", uses_generator=True)
+@method("ga", "ours (GA, {views})", layout="hemi", uses_generator=True, prepare=collect_generator_statistics)
 def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", profile: str = "default",
            seed: int = 0, progress: bool = True, n_input_views: int | None = None,
-           statistics: str | Path | None = None, ga_settings: dict | None = None, **options) -> dict:
+           prepared: str | Path | None = None, ga_settings: dict | None = None, **options) -> dict:
     """``ipm reconstruct --method ga``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json.
 
     Parameters
@@ -579,9 +591,10 @@ def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", pr
         and random seed (same seed, same output).
     n_input_views
         Use the first N frames (default: all); the table's row uses 1.
-    statistics
-        Gene statistics JSON from :func:`collect_generator_statistics`; without it they are
-        collected here first (``2 * stats_samples`` more evaluations).
+    prepared
+        Gene statistics JSON from :func:`collect_generator_statistics` (the method's cached
+        preparation stage, ``ipm prepare ga``); without it they are collected here first
+        (``2 * stats_samples`` more evaluations).
     ga_settings
         Overrides of the profile's ``GASettings`` (e.g. ``{"budget": 1500}``).
     **options
@@ -598,10 +611,10 @@ def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", pr
         views = views.subset(range(n_input_views))
     objective = problem_objective(views, gen, opts)
     t_stats = time.perf_counter()
-    if statistics is not None:
-        stats = GeneStatistics.load(statistics)
+    if prepared is not None:
+        stats = GeneStatistics.load(prepared)
         stats.check(objective.genome.spec)
-        stats_source = str(statistics)
+        stats_source = str(prepared)
     else:
         stats = generator_statistics(gen, settings, opts, seed, progress)
         stats_source = "collected"

@@ -11,20 +11,29 @@ METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v"
 LINE_LABELS = {"convex_hull": "convex hull (reference)", "bounding_sphere": "bounding sphere (reference)"}
 
 
-def method_rows():
-    """Row ids of reconstruction methods, e.g. 'diff_1v', from the config's methods list."""
-    return [f"{m['name']}_{m['views']}v" for m in config["methods"]]
-
-
-def all_rows():
-    return method_rows() + [f"line_{name}" for name in config["reference_lines"]]
+def method_cases(m):
+    """Cases a methods entry runs on: its own ``cases`` list, else all of the config's."""
+    return m.get("cases", config["cases"])
 
 
 def check_methods():
-    """Refuse unknown method names when the DAG is built, with the known ones in the message."""
+    """Refuse, when the DAG is built, unknown method names, cases outside the config's list and
+    generators a method cannot fit (the diff path on trees), each with one line saying why."""
+    from ipm.errors import UserError
+    from ipm.methods import check_generator
+    from ipm.synth import load_case
+
     for m in config["methods"]:
         if m["name"] not in METHODS:
             raise ValueError(f"config: unknown method {m['name']!r} (known: {', '.join(METHODS.names())})")
+        for case in method_cases(m):
+            if case not in config["cases"]:
+                raise ValueError(f"config: method {m['name']} lists case {case!r}, which is not in cases")
+            if METHODS[m["name"]].uses_generator:
+                try:
+                    check_generator(m["name"], load_case(case)["generator"])
+                except UserError as e:
+                    raise ValueError(f"config: case {case}: {e}; give the entry a cases list") from None
 
 
 check_methods()
@@ -73,15 +82,29 @@ def method_transforms(wildcards):
     return f"{views_dir(m['name'], m['views'], wildcards.case)}/transforms.json"
 
 
+def method_inputs(wildcards):
+    """Inputs of a reconstruction: its views, and the method's preparation file for the case's
+    generator if it has a preparation stage (the GA's gene statistics, made once per generator)."""
+    m = method_of(wildcards)
+    out = {"transforms": method_transforms(wildcards)}
+    if METHODS[m["name"]].prepare is not None:
+        out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}.json"
+    return out
+
+
 def synth_res(wildcards):
     """Reference image size of a view layout (COLMAP's rings are rendered larger, for SIFT)."""
     return config["synth"]["ring_res"] if wildcards.layout == "ring" else config["synth"]["res"]
 
 
 def input_view_dirs():
-    """Per case, the views of the first configured method (the report shows its view 0)."""
-    m = config["methods"][0]
-    return {case: views_dir(m["name"], m["views"], case) for case in config["cases"]}
+    """Per case, the views of the first configured method that runs on it (the report shows its
+    view 0)."""
+    out = {}
+    for m in config["methods"]:
+        for case in method_cases(m):
+            out.setdefault(case, views_dir(m["name"], m["views"], case))
+    return out
 
 
 def recon_dir(wildcards):
@@ -89,13 +112,17 @@ def recon_dir(wildcards):
 
 
 def all_metrics():
-    return expand("results/evaluate/{row}/{case}/metrics.json", row=all_rows(), case=config["cases"])
+    """Metrics files of every (row, case) pair: method rows on their cases, reference lines on all."""
+    out = [f"results/evaluate/{m['name']}_{m['views']}v/{case}/metrics.json"
+           for m in config["methods"] for case in method_cases(m)]
+    return out + expand("results/evaluate/line_{name}/{case}/metrics.json", name=config["reference_lines"],
+                        case=config["cases"])
 
 
 def all_parts_previews():
     """Part previews of the rows that fit a generator (baselines have no parts)."""
-    rows = [f"{m['name']}_{m['views']}v" for m in config["methods"] if METHODS[m["name"]].uses_generator]
-    return expand("results/reconstruct/{row}/{case}/parts.png", row=rows, case=config["cases"])
+    return [f"results/reconstruct/{m['name']}_{m['views']}v/{case}/parts.png"
+            for m in config["methods"] if METHODS[m["name"]].uses_generator for case in method_cases(m)]
 
 
 def get_final_output():

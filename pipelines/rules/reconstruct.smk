@@ -1,6 +1,23 @@
+rule prepare:
+    output:
+        "results/prepare/{method}/{generator}.json",
+    log:
+        "logs/prepare/{method}/{generator}.log",
+    params:
+        profile=config["profile"],
+        seed=config["seed"],
+    threads: 1
+    resources:
+        mem_mb=3000,
+    conda:
+        "../envs/ipm.yaml"
+    script:
+        "../scripts/prepare.py"
+
+
 rule reconstruct:
     input:
-        transforms=method_transforms,
+        unpack(method_inputs),
     output:
         mesh="results/reconstruct/{row}/{case}/mesh.ply",
         timing="results/reconstruct/{row}/{case}/timing.json",

@@ -1,0 +1,5 @@
+from ipm.workflow import prepare_step
+
+prepare_step(method=snakemake.wildcards.method, generator=snakemake.wildcards.generator, out=snakemake.output[0],
+             profile=snakemake.params.profile, seed=snakemake.params.seed, threads=snakemake.threads,
+             log=snakemake.log[0])
