@@ -76,21 +76,15 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
 def disjoint_groups(lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
     """Greedy partition of boxes ``[lo, hi]`` (n, 3) into groups whose boxes do not overlap
     (touching counts as overlapping), largest boxes first."""
-    n = len(lo)
     order = np.argsort(-np.prod(hi - lo, axis=1), kind="stable")
-    group_of = np.full(n, -1)
-    placed = np.zeros(n, dtype=bool)
-    groups: list[np.ndarray] = []
+    group_of = np.full(len(lo), -1)
+    n_groups = 0
     for i in order:
-        # groups that hold a box overlapping box i
-        hit = placed & np.all((lo <= hi[i]) & (hi >= lo[i]), axis=1)
-        taken = set(group_of[hit].tolist())
-        g = next((k for k in range(len(groups) + 1) if k not in taken))
-        group_of[i] = g
-        placed[i] = True
-        if g == len(groups):
-            groups.append(None)
-    return [np.flatnonzero(group_of == g) for g in range(len(groups))]
+        overlapping = (group_of >= 0) & np.all((lo <= hi[i]) & (hi >= lo[i]), axis=1)
+        taken = set(group_of[overlapping].tolist())
+        group_of[i] = next(k for k in range(n_groups + 1) if k not in taken)  # the first free group
+        n_groups = max(n_groups, group_of[i] + 1)
+    return [np.flatnonzero(group_of == g) for g in range(n_groups)]
 
 
 def voxel_centres(bounds: np.ndarray, grid: int) -> np.ndarray:
