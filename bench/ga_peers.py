@@ -12,6 +12,12 @@ best objective loss, its tree similarity (TSim without multipliers, in the input
 64-view IoU of its mesh against the reference, and wall time; plus the GA's similarity and IoU
 over each peer's (the ratios issue 4 asks for). The case's one input view is rendered into
 ``OUT/views`` unless ``--views`` gives a transforms.json.
+
+    .venv/bin/python bench/ga_peers.py --aggregate DIR [DIR ...] [--out OUT]
+
+combines the ``summary.json`` of runs with other seeds into ``OUT/aggregate.json``: per
+algorithm the values of every seed and their means, and the GA's mean similarity over each
+peer's.
 """
 from __future__ import annotations
 
@@ -106,6 +112,29 @@ def describe(objective, g, reference, options) -> dict:
     return {"loss": float(objective(g)), "tsim": float(tsim), "iou64": float(iou)}
 
 
+def aggregate(dirs: list[str], out: Path) -> dict:
+    """Per-seed values and means of every algorithm over the runs in ``dirs`` (their summary.json)."""
+    from ipm.io import write_json
+
+    runs = [json.loads((Path(d) / "summary.json").read_text()) for d in dirs]
+    algs: dict = {}
+    for run in runs:
+        for name, r in run["algorithms"].items():
+            a = algs.setdefault(name, {"seeds": [], "loss": [], "tsim": [], "iou64": []})
+            a["seeds"].append(run["seed"])
+            for k in ("loss", "tsim", "iou64"):
+                a[k].append(r[k])
+    for a in algs.values():
+        for k in ("loss", "tsim", "iou64"):
+            a[f"mean_{k}"] = float(np.mean(a[k]))
+    out_d = {"case": runs[0]["case"], "budget": runs[0]["budget"], "runs": [str(d) for d in dirs], "algorithms": algs}
+    if "ga" in algs:
+        out_d["ga_over_peer_mean_similarity"] = {
+            p: (1 - algs["ga"]["mean_loss"]) / max(1 - a["mean_loss"], 1e-12) for p, a in algs.items() if p != "ga"}
+    write_json(out / "aggregate.json", out_d)
+    return out_d
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--case", default="tree_1")
@@ -120,7 +149,13 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", default="results/bench/ga_peers")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    ap.add_argument("--aggregate", nargs="+", default=None, metavar="DIR",
+                    help="only combine the summary.json of earlier runs into OUT/aggregate.json")
     args = ap.parse_args()
+    if args.aggregate:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        print(json.dumps(aggregate(args.aggregate, Path(args.out)), indent=1))
+        return
     global PROGRESS
     PROGRESS = not args.quiet
 
