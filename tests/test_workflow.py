@@ -35,37 +35,35 @@ def test_dry_run_plans_every_stage(config, tmp_path):
         assert f"rule {rule}:" in res.stdout
 
 
+def dry_run(tmp_path, config_text: str):
+    """A dry run with the config ``config_text``: (exit code, stdout + stderr)."""
+    cfg = tmp_path / "config.yaml"
+    cfg.write_text(config_text)
+    res = snakemake("-n", "--cores", "1", "--configfile", str(cfg), "--directory", str(tmp_path))
+    return res.returncode, res.stdout + res.stderr
+
+
 def test_invalid_config_is_refused(tmp_path):
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("profile: turbo\n")
-    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
-    assert res.returncode != 0 and "turbo" in res.stdout + res.stderr
+    rc, out = dry_run(tmp_path, "profile: turbo\n")
+    assert rc != 0 and "turbo" in out
 
 
 def test_unknown_method_is_refused(tmp_path):
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("methods: [{name: nerf, views: 16}]\n")
-    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
-    assert res.returncode != 0 and "unknown method 'nerf'" in res.stdout + res.stderr
+    rc, out = dry_run(tmp_path, "methods: [{name: nerf, views: 16}]\n")
+    assert rc != 0 and "unknown method 'nerf'" in out
 
 
 def test_diff_on_a_tree_case_is_refused(tmp_path):
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1}]\n")
-    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
-    out = res.stdout + res.stderr
-    assert res.returncode != 0 and "case tree_1: method 'diff' needs a differentiable generator" in out
-    bad.write_text("cases: [cup_1]\nmethods: [{name: ga, views: 1, cases: [tree_1]}]\n")
-    res = snakemake("-n", "--cores", "1", "--configfile", str(bad), "--directory", str(tmp_path))
-    assert res.returncode != 0 and "lists case 'tree_1', which is not in cases" in res.stdout + res.stderr
+    rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1}]\n")
+    assert rc != 0 and "case tree_1: method 'diff' needs a differentiable generator" in out
+    rc, out = dry_run(tmp_path, "cases: [cup_1]\nmethods: [{name: ga, views: 1, cases: [tree_1]}]\n")
+    assert rc != 0 and "lists case 'tree_1', which is not in cases" in out
 
 
 def test_rows_run_on_their_cases_and_the_ga_statistics_once_per_generator(tmp_path):
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text("cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1}]\n")
-    res = snakemake("-n", "--cores", "1", "--configfile", str(cfg), "--directory", str(tmp_path))
-    out = res.stdout + res.stderr
-    assert res.returncode == 0, out
+    rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\n"
+                                "methods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1}]\n")
+    assert rc == 0, out
     assert "results/reconstruct/diff_1v/cup_1/mesh.ply" in out and "diff_1v/tree_1" not in out
     for gen in ("dishes", "trees"):
         assert out.count(f"output: results/prepare/ga/{gen}.json") == 1
