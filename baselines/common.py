@@ -16,11 +16,7 @@ from ipm.render.cameras import project
 
 def input_views(views_path: str | Path, n_input_views: int | None, minimum: int = 2) -> Views:
     """The first ``n_input_views`` views of ``views_path`` (all if None); at least ``minimum``."""
-    views = load_views(views_path)
-    n = len(views) if n_input_views is None else n_input_views
-    if not minimum <= n <= len(views):
-        raise UserError(f"this baseline needs {minimum}..{len(views)} views of {views_path}, asked for {n}")
-    return views.subset(range(n))
+    return load_views(views_path).first(n_input_views, minimum)
 
 
 def mask_values(views: Views, points: np.ndarray) -> np.ndarray:

@@ -28,8 +28,6 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--views", required=True, help="transforms.json with masks")
     r.add_argument("--out", required=True, help="output directory")
     r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam) or ga (tree-structured GA)")
-    r.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
-    r.add_argument("--seed", type=int, default=0, help="random seed")
     r.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
     r.add_argument("--prepared", default=None,
@@ -39,15 +37,11 @@ def _parser() -> argparse.ArgumentParser:
     pr.add_argument("method", help="registered method name with a preparation stage (ga)")
     pr.add_argument("--generator", required=True, help="generator name (e.g. trees)")
     pr.add_argument("--out", required=True, help="output file (JSON)")
-    pr.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
-    pr.add_argument("--seed", type=int, default=0, help="random seed")
 
     b = sub.add_parser("baseline", help="run a baseline (diffsdf, visual_hull, colmap_known, colmap_sfm)")
     b.add_argument("name", help="registered baseline name")
     b.add_argument("--views", required=True, help="transforms.json (masks; textured RGB for COLMAP)")
     b.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json, info.json)")
-    b.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
-    b.add_argument("--seed", type=int, default=0, help="random seed")
     b.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
 
@@ -65,6 +59,9 @@ def _parser() -> argparse.ArgumentParser:
     lr.add_argument("--reference", required=True, help="reference mesh (PLY)")
     lr.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json)")
 
+    for sp in (r, pr, b):
+        sp.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
+        sp.add_argument("--seed", type=int, default=0, help="random seed")
     for sp in (s, r, pr, b, e, lr):
         sp.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU threads")
         sp.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Mitsuba/JAX device")

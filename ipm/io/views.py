@@ -44,6 +44,13 @@ class Views:
     def __len__(self) -> int:
         return len(self.c2w)
 
+    def first(self, n: int | None, minimum: int = 1) -> "Views":
+        """The first ``n`` views (all if None); ``UserError`` unless ``minimum <= n <= len(self)``."""
+        n = len(self) if n is None else n
+        if not minimum <= n <= len(self):
+            raise UserError(f"--n-input-views: needs {minimum}..{len(self)} views of {self.root}, got {n}")
+        return self.subset(range(n))
+
     def subset(self, idx) -> "Views":
         """The views with indices ``idx`` (a list), in that order."""
         idx = list(idx)

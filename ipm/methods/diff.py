@@ -14,7 +14,6 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
@@ -149,11 +148,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     check_generator("diff", generator)
     gen = get_generator(generator)
     prof = get_profile(profile, **overrides)
-    views = load_views(views_path)
-    if n_input_views is not None:
-        if not 1 <= n_input_views <= len(views):
-            raise UserError(f"--n-input-views must be in 1..{len(views)}, got {n_input_views}")
-        views = views.subset(range(n_input_views))
+    views = load_views(views_path).first(n_input_views)
     problem = Problem(gen, *estimate_anchor(views))
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
     mesh = problem.world_mesh(z, prof.output_lod)

@@ -604,11 +604,7 @@ def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", pr
     gen = get_generator(generator)
     settings = get_settings(profile, **(ga_settings or {}))
     opts = get_options(profile, **{k: v for k, v in options.items() if k in GAOptions.__dataclass_fields__})
-    views = load_views(views_path)
-    if n_input_views is not None:
-        if not 1 <= n_input_views <= len(views):
-            raise UserError(f"--n-input-views must be in 1..{len(views)}, got {n_input_views}")
-        views = views.subset(range(n_input_views))
+    views = load_views(views_path).first(n_input_views)
     objective = problem_objective(views, gen, opts)
     t_stats = time.perf_counter()
     if prepared is not None:
