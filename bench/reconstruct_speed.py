@@ -3,7 +3,10 @@ reconstructions of the cup cases with their 64-view IoU.
 
     .venv/bin/python bench/reconstruct_speed.py [--device cpu|cuda] [--threads 2] [--profile default]
         [--cases cup_1 cup_2 cup_ext] [--out results/bench/reconstruct_speed.json]
+        [--keep DIR] [--no-eval]
 
+``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine lacks); ``--keep DIR``
+keeps each case's reference and reconstruction there, for ``ipm evaluate`` on another machine.
 Prints a table and writes the numbers as JSON (with the machine's description). Targets
 (issue 2): a default-profile cup reconstruction within 5 minutes on 2 CPU cores.
 """
@@ -28,19 +31,22 @@ def main() -> None:
     ap.add_argument("--resolutions", nargs="+", type=int, default=[128, 256, 512])
     ap.add_argument("--iterations", type=int, default=20, help="timed iterations per resolution")
     ap.add_argument("--out", default="results/bench/reconstruct_speed.json")
+    ap.add_argument("--keep", help="copy references and reconstructions into this folder")
+    ap.add_argument("--no-eval", action="store_true", help="skip the IoU (no open3d needed)")
     args = ap.parse_args()
 
     from ipm.runtime import configure_threads, set_mitsuba_variant
 
     configure_threads(args.threads, args.device)
     set_mitsuba_variant(args.device, args.threads)
+    import shutil
+
     import numpy as np
 
     from ipm.generators import get_generator
     from ipm.io import load_mesh, load_views
     from ipm.methods import METHODS
     from ipm.methods.diff import Objective
-    from ipm.metrics import evaluate_meshes
     from ipm.problem import Problem, estimate_anchor
     from ipm.profiles import get_profile
     from ipm.synth import synthesize
@@ -72,13 +78,22 @@ def main() -> None:
                 info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator="dishes",
                                        profile=args.profile, seed=seed, progress=False)
                 seconds = time.perf_counter() - t0
-                m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(tmp / f"rec_{case}" / "mesh.ply"))
-                record["reconstructions"][f"{case}/seed{seed}"] = {
-                    "seconds": seconds, "evaluations": info["evaluations"], "iou_mean": m["iou_mean"],
-                    "viou": m["viou"], "has_handle": info["params"]["has_handle"]}
-                print(f"{case:8s} seed {seed}: {seconds:7.1f} s, {info['evaluations']} evaluations, "
-                      f"IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}, handle {info['params']['has_handle']}",
-                      flush=True)
+                if args.keep:
+                    keep = Path(args.keep) / case
+                    keep.mkdir(parents=True, exist_ok=True)
+                    shutil.copy(tmp / case / "reference.ply", keep / "reference.ply")
+                    for name in ("mesh.ply", "params.json"):
+                        shutil.copy(tmp / f"rec_{case}" / name, keep / f"seed{seed}_{name}")
+                row = {"seconds": seconds, "evaluations": info["evaluations"], "has_handle": info["params"]["has_handle"]}
+                text = f"{case:8s} seed {seed}: {seconds:7.1f} s, {info['evaluations']} evaluations"
+                if not args.no_eval:
+                    from ipm.metrics import evaluate_meshes
+
+                    m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(tmp / f"rec_{case}" / "mesh.ply"))
+                    row.update(iou_mean=m["iou_mean"], viou=m["viou"])
+                    text += f", IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}"
+                record["reconstructions"][f"{case}/seed{seed}"] = row
+                print(f"{text}, handle {info['params']['has_handle']}", flush=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(record, indent=2) + "\n")

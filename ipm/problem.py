@@ -21,12 +21,12 @@ from ipm.io.views import Views
 from ipm.render.cameras import pixel_ray
 
 POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
-POSE_LOWER = np.array([-np.inf, -0.1, -0.1, -1.5, 0.0, -1.5, -2.5])
-POSE_UPPER = np.array([np.inf, 0.1, 0.1, 1.5, 0.0, 1.5, 2.5])
-"""Pose bounds. ``dy`` is held at 0: the object stands on y = 0 (DESIGN.md). This prior is what
-resolves most of the single-view ambiguity between distance along the ray and scale: with the
-base free to float 3 % of the height, a workflow run ended 3 cm below the ground and 7 cm off
-along the ray (cup_1 IoU 0.83). Tilts are small (under 6 degrees), for the same reason."""
+POSE_LOWER = np.array([-np.inf, 0.0, 0.0, -1.5, 0.0, -1.5, -2.5])
+POSE_UPPER = np.array([np.inf, 0.0, 0.0, 1.5, 0.0, 1.5, 2.5])
+"""Pose bounds; the tilts' are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0: the
+object stands on y = 0 (DESIGN.md). This prior is what resolves most of the single-view ambiguity
+between distance along the ray and scale: with the base free to float 3 % of the height, a
+workflow run ended 3 cm below the ground and 7 cm off along the ray (cup_1 IoU 0.83)."""
 
 
 def estimate_anchor(views: Views) -> tuple[np.ndarray, float]:
@@ -80,9 +80,12 @@ def _rotation(yaw, tx, tz):
 
 
 class Problem:
-    """Generator + pose anchor; builds the pure JAX map z -> world vertices per topology."""
+    """Generator + pose anchor; builds the pure JAX map z -> world vertices per topology.
 
-    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float):
+    ``max_tilt`` bounds both tilt angles (radians); 0 holds the object upright.
+    """
+
+    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.1):
         self.generator = generator
         self.spec = generator.spec
         self.n_shape = len(self.spec)
@@ -91,6 +94,8 @@ class Problem:
         self.anchor_s = float(anchor_s)
         self.lower = np.concatenate([np.zeros(self.n_shape), POSE_LOWER])
         self.upper = np.concatenate([np.ones(self.n_shape), POSE_UPPER])
+        tilts = self.n_shape + np.array([POSE_NAMES.index("tilt_x"), POSE_NAMES.index("tilt_z")])
+        self.lower[tilts], self.upper[tilts] = -max_tilt, max_tilt
         groups = getattr(generator, "smooth_groups", ())
         self._smooth = [(np.arange(a, b), w, np.diff(np.eye(b - a), order, axis=0)) for a, b, w, order in groups]
 

@@ -40,6 +40,7 @@ def test_diff_reconstruction_writes_everything(tmp_path, tiny_case):
     assert list(params["params"]) == list(gen.spec.names) and params == json.loads(json.dumps(info))
     assert set(params["pose"]) == {"yaw", "tilt_x", "tilt_z", "translation", "scale"}
     assert params["pose"]["translation"][1] == 0.0  # it stands on the ground plane
+    assert params["pose"]["tilt_x"] == params["pose"]["tilt_z"] == 0.0  # upright: the profiles' max_tilt is 0
     trace = pd.read_csv(out / "trace.csv")
     assert len(trace) == params["evaluations"] and {"memetic", "refine"} <= set(trace["stage"])
     assert trace["best"].iloc[-1] <= trace["loss"].iloc[0]  # the search improved on its start
@@ -55,6 +56,15 @@ def test_diff_reconstruction_writes_everything(tmp_path, tiny_case):
     iou_start = silhouette_iou(ref, trimesh.Trimesh(start.vertices, start.faces), n_views=16, res=64)["iou_mean"]
     iou = silhouette_iou(ref, mesh, n_views=16, res=64)["iou_mean"]
     assert iou > iou_start and iou > 0.7
+
+
+def test_max_tilt_bounds_both_tilts():
+    gen = get_generator("dishes")
+    for max_tilt in (0.0, 0.05):
+        problem = Problem(gen, np.zeros(3), 1.0, max_tilt=max_tilt)
+        tilts = problem.n_shape + np.array([1, 2])
+        assert np.all(problem.clip(np.full(problem.dim, 3.0))[tilts] == max_tilt)
+        assert np.all(problem.clip(np.full(problem.dim, -3.0))[tilts] == -max_tilt)
 
 
 def test_reconstruction_is_deterministic(tmp_path, tiny_case):

@@ -2,7 +2,7 @@
 
 Loss: mean over views of the pixel MSE between the Mitsuba silhouette and the reference
 mask, plus the generator's smoothness prior. Pose (yaw, tilts, translation, scale) is
-optimised with the shape (``ipm.problem``).
+optimised with the shape (``ipm.problem``); the tilts only where the profile allows them.
 """
 from __future__ import annotations
 
@@ -149,7 +149,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     gen = get_generator(generator)
     prof = get_profile(profile, **overrides)
     views = load_views(views_path).first(n_input_views)
-    problem = Problem(gen, *estimate_anchor(views))
+    problem = Problem(gen, *estimate_anchor(views), max_tilt=prof.max_tilt)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
     mesh = problem.world_mesh(z, prof.output_lod)
     if not np.all(np.isfinite(mesh.vertices)):

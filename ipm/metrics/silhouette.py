@@ -3,9 +3,9 @@
 Masks are computed with open3d's Embree-backed ``RaycastingScene`` so the metric is
 independent of the (differentiable) Mitsuba renderer used for optimisation.
 """
+from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 import trimesh
 
 FOV_DEG = 40.0
@@ -40,8 +40,17 @@ def finite_part(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return part
 
 
-def raycasting_scene(mesh: trimesh.Trimesh) -> o3d.t.geometry.RaycastingScene:
+def open3d():
+    """The open3d module, imported on first use: only the metrics need it, so the reconstruction
+    paths also run where it is not installed (the GPU machine used by ``bench/``)."""
+    import open3d
+
+    return open3d
+
+
+def raycasting_scene(mesh: trimesh.Trimesh) -> open3d.t.geometry.RaycastingScene:
     """Build an open3d ray casting scene holding the mesh triangles (an empty mesh gives an empty scene)."""
+    o3d = open3d()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32).reshape(-1, 3)),
@@ -90,7 +99,7 @@ def raycast_masks(mesh: trimesh.Trimesh, cams: list, res: int = 256, fov_deg: fl
     rays = np.empty((len(c2w), res * res, 6), dtype=np.float32)
     rays[..., :3] = c2w[:, None, :3, 3]
     rays[..., 3:] = np.einsum("nij,pj->npi", c2w[:, :3, :3], pix)
-    hit = raycasting_scene(mesh).test_occlusions(o3d.core.Tensor(rays)).numpy()
+    hit = raycasting_scene(mesh).test_occlusions(open3d().core.Tensor(rays)).numpy()
     return hit.reshape(len(c2w), res, res)
 
 

@@ -1,10 +1,9 @@
 """Volumetric IoU on a voxel-centre grid, robust to intersecting closed components."""
 
 import numpy as np
-import open3d as o3d
 import trimesh
 
-from .silhouette import check_reference, finite_part, raycasting_scene
+from .silhouette import check_reference, finite_part, open3d, raycasting_scene
 
 OCCUPANCY_RAYS = 3  # odd number of parity rays per point, majority vote guards against edge/vertex hits
 
@@ -67,7 +66,7 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
         if sel.size:
             faces = np.concatenate([faces_by_comp[starts[k]:starts[k + 1]] for k in group])
             part = trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False)
-            occ = raycasting_scene(part).compute_occupancy(o3d.core.Tensor(points[sel].astype(np.float32)),
+            occ = raycasting_scene(part).compute_occupancy(open3d().core.Tensor(points[sel].astype(np.float32)),
                                                            nsamples=OCCUPANCY_RAYS).numpy()
             inside[sel] |= occ > 0.5
     return inside
