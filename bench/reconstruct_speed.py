@@ -16,9 +16,20 @@ import argparse
 import json
 import os
 import platform
+import subprocess
 import tempfile
 import time
 from pathlib import Path
+
+
+def gpu_name() -> str | None:
+    """The first GPU's name from ``nvidia-smi`` (None where it cannot be asked)."""
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                             text=True, timeout=30, check=True).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.splitlines()[0].strip() if out.strip() else None
 
 
 def main() -> None:
@@ -52,6 +63,7 @@ def main() -> None:
     from ipm.synth import synthesize
 
     record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
+              "gpu": gpu_name() if args.device == "cuda" else None,
               "device": args.device, "threads": args.threads, "profile": args.profile,
               "iteration_ms": {}, "reconstructions": {}}
     with tempfile.TemporaryDirectory() as tmp:

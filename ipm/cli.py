@@ -32,6 +32,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="use only the first N frames of transforms.json (default: all)")
     r.add_argument("--prepared", default=None,
                    help="the method's preparation file from ipm prepare (ga: gene statistics; default: made in the run)")
+    r.add_argument("--max-tilt", type=float, default=None,
+                   help="diff: let the object lean up to this many radians (default 0: upright, on y = 0)")
 
     pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics)")
     pr.add_argument("method", help="registered method name with a preparation stage (ga)")
@@ -96,6 +98,12 @@ def _run(args) -> int:
             if method.prepare is None:
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
             extra["prepared"] = args.prepared
+        if args.max_tilt is not None:
+            if args.method != "diff":
+                raise UserError("--max-tilt applies to the diff path only")
+            if not 0.0 <= args.max_tilt <= 0.5:  # also false for NaN
+                raise UserError(f"--max-tilt: needs 0 to 0.5 radians, got {args.max_tilt}")
+            extra["max_tilt"] = args.max_tilt
         set_mitsuba_variant(args.device, args.threads)
         info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views, **extra)

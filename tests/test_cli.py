@@ -85,6 +85,11 @@ def test_methods_refuse_generators_and_stages_they_cannot_use(tmp_path, tiny_cas
     res = ipm("reconstruct", "--method", "diff", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"),
               "--prepared", str(tmp_path / "x.json"))
     assert "no preparation stage" in _one_line_error(res)
+    res = ipm("reconstruct", "--method", "ga", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"),
+              "--max-tilt", "0.1")
+    assert "--max-tilt applies to the diff path only" in _one_line_error(res)
+    res = ipm("reconstruct", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"), "--max-tilt", "nan")
+    assert "--max-tilt: needs 0 to 0.5 radians, got nan" in _one_line_error(res)
     res = ipm("prepare", "diff", "--generator", "dishes", "--out", str(tmp_path / "p.json"))
     assert "no preparation stage" in _one_line_error(res)
     res = ipm("prepare", "ga", "--generator", "teapot", "--out", str(tmp_path / "p.json"))
