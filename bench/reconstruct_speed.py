@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import tempfile
 import time
@@ -50,8 +51,6 @@ def main() -> None:
 
     configure_threads(args.threads, args.device)
     set_mitsuba_variant(args.device, args.threads)
-    import shutil
-
     import numpy as np
 
     from ipm.generators import get_generator

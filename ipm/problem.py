@@ -23,7 +23,7 @@ from ipm.render.cameras import pixel_ray
 POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
 POSE_LOWER = np.array([-np.inf, 0.0, 0.0, -1.5, 0.0, -1.5, -2.5])
 POSE_UPPER = np.array([np.inf, 0.0, 0.0, 1.5, 0.0, 1.5, 2.5])
-"""Pose bounds; the tilts' are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0: the
+"""Pose bounds; the tilts' bounds are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0: the
 object stands on y = 0 (DESIGN.md). This prior is what resolves most of the single-view ambiguity
 between distance along the ray and scale: with the base free to float 3 % of the height, a
 workflow run ended 3 cm below the ground and 7 cm off along the ray (cup_1 IoU 0.83)."""
