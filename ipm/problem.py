@@ -85,7 +85,7 @@ class Problem:
     ``max_tilt`` bounds both tilt angles (radians); 0 holds the object upright.
     """
 
-    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.1):
+    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.0):
         self.generator = generator
         self.spec = generator.spec
         self.n_shape = len(self.spec)
