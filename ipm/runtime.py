@@ -5,7 +5,10 @@ from the CLI or a test fixture, and never at import time of a library module.
 """
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import os
+import sys
 from pathlib import Path
 
 from ipm.errors import UserError
@@ -34,6 +37,77 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
         os.environ.setdefault(var, str(threads))
     if device == "cpu":
         os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    global _THREADS
+    _THREADS = threads
+    if "jax" in sys.modules:
+        _start_xla_cpu(threads)
+    elif not any(isinstance(f, _AfterImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterImport("jax", lambda module: _start_xla_cpu(_THREADS)))
+
+
+_THREADS: int | None = None
+
+
+def thread_count() -> int:
+    """CPU threads this process may use: the count given to :func:`configure_threads`, else every
+    CPU it may run on. Libraries that take a thread count per call (open3d's ray casting, COLMAP)
+    get it from here."""
+    return _THREADS or len(os.sched_getaffinity(0))
+
+
+def _start_xla_cpu(threads: int) -> None:
+    """Start XLA's CPU client with ``threads`` threads in its pools.
+
+    XLA sizes its CPU pools (``tf_XLAEigen``, the client's) by the CPUs the process may run on
+    when the client starts and ignores ``intra_op_parallelism_threads``: with jax 0.10 the
+    diffSDF-style baseline kept 1.7 cores busy under ``--threads 1``. So the client is started
+    with the calling thread pinned to ``threads`` CPUs (new threads inherit that mask), and then
+    every thread of the process gets the whole mask back, so the scheduler can still move the
+    job to whichever core is free. Does nothing when ``threads`` covers every CPU.
+    """
+    full = os.sched_getaffinity(0)
+    if threads >= len(full):
+        return
+    os.sched_setaffinity(0, sorted(full)[:threads])
+    try:
+        import jax
+        import jax.numpy as jnp
+
+        with jax.default_device(jax.devices("cpu")[0]):  # pools made at the first compile and run, too
+            jax.jit(lambda x: jnp.sin(x) @ x)(jnp.ones((4, 4))).block_until_ready()
+    finally:
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                os.sched_setaffinity(int(tid), full)
+            except OSError:  # the thread ended meanwhile
+                pass
+
+
+class _AfterImport(importlib.abc.MetaPathFinder):
+    """Runs ``hook(module)`` once, right after the top-level module ``name`` is first imported."""
+
+    def __init__(self, name: str, hook):
+        self.name, self.hook = name, hook
+
+    def find_spec(self, fullname, path=None, target=None):
+        if fullname != self.name:
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is None or spec.loader is None:
+            return spec
+        loader, hook = spec.loader, self.hook
+
+        class Loader(importlib.abc.Loader):
+            def create_module(self, spec):
+                return loader.create_module(spec)
+
+            def exec_module(self, module):
+                loader.exec_module(module)
+                hook(module)
+
+        spec.loader = Loader()
+        return spec
 
 
 def _point_drjit_at_llvm19() -> None:

@@ -1,8 +1,18 @@
-"""Table 1: one row per (method, case) with every metric, and the IoU pivot like the paper's.
+"""Table 1: every (method, case, seed) with every metric, its summary over seeds, and class aggregates.
 
-A metrics file lives at ``results/evaluate/<row>/<case>/metrics.json`` beside ``row.json``
-(label, kind, wall time of the reconstruction, a note such as a failure's reason), both written
-by the evaluate step. A failed run has no metrics: its cells are empty and show as "-".
+A metrics file lives at ``results/evaluate/<row>/<case>/s<seed>/metrics.json`` beside ``row.json``
+(label, kind, the case's split and generator, seed, wall time of the reconstruction, a note such
+as a failure's reason), both written by the evaluate step. A failed run has no metrics: its cells
+are empty and show as "-".
+
+- ``table.csv``: one line per run (long);
+- ``table_summary.csv``: per (row, case) the mean, sample standard deviation and worst over seeds
+  of the IoUs, and means of the rest; then per (row, class, split, family) an aggregate line
+  (``case`` = ``<class>/<split>/<family>``): the mean over the cases of their seed means (the
+  paper's "average IoU"), the standard deviation over seeds of the per-seed mean over the cases,
+  and the worst case;
+- ``table_iou.csv``: label x case (then aggregates) of the mean 64-view IoU, as the paper lays out;
+- ``table1.md``: Markdown tables per class and split (test first) for the README.
 """
 from __future__ import annotations
 
@@ -14,29 +24,155 @@ import pandas as pd
 
 from ipm.io.atomic import atomic_path
 
-COLUMNS = ["row", "label", "kind", "case", "iou_mean", "iou_min", "iou_std", "iou_above", "iou_below",
-           "viou", "recon_watertight", "chamfer_l2", "chamfer_l1", "n_triangles", "malformed_share", "seconds", "note"]
+COLUMNS = ["row", "label", "kind", "case", "split", "generator", "family", "seed", "iou_mean", "iou_min", "iou_std",
+           "iou_above", "iou_below", "shape_iou", "align_yaw_deg", "align_shift", "align_scale", "viou",
+           "recon_watertight", "chamfer_l2", "chamfer_l1", "n_triangles", "malformed_share", "param_err",
+           "param_err_max", "discrete_match", "yaw_err_deg", "trans_err_rel", "scale_err_pct", "seconds", "note"]
 KINDS = ("baseline", "method", "reference")
 """Row kinds in table order: general-purpose baselines, ours, reference lines (as in the paper)."""
+SPREAD = ("iou_mean", "shape_iou", "viou")
+"""Metrics summarised by mean, standard deviation and worst (lowest) over seeds."""
+MEANS = ("chamfer_l2", "malformed_share", "param_err", "param_err_max", "discrete_match", "yaw_err_deg",
+         "trans_err_rel", "scale_err_pct", "seconds")
+"""Metrics summarised by their mean over seeds."""
+CLASS_NAMES = {"dishes": "cups", "trees": "trees", "buildings": "buildings"}
+"""Table names of the classes, by the generator that reconstructs them."""
 
 
 def _row(metrics_path: Path) -> dict:
     m = json.loads(metrics_path.read_text())
     info = json.loads((metrics_path.parent / "row.json").read_text())
-    return {"row": metrics_path.parent.parent.name, "case": metrics_path.parent.name, **info,
-            **{k: m[k] for k in COLUMNS if k in m}}
+    return {"row": metrics_path.parent.parent.parent.name, "case": metrics_path.parent.parent.name, **info,
+            **{k: m[k] for k in COLUMNS if k in m and k not in info}}
 
 
-def build_table(metrics: list[str], table_csv: str, wide_csv: str) -> pd.DataFrame:
-    """Collect metrics into ``table_csv`` (long) and ``wide_csv`` (label x case mean IoU)."""
+def _family(case: str) -> str:
+    """``in`` for cases made by their class's generator, ``out`` for those built by independent code."""
+    from ipm.synth import load_case
+
+    return "in" if "generator" in load_case(case)["source"] else "out"
+
+
+def long_table(metrics: list[str]) -> pd.DataFrame:
+    """One line per run, kinds in :data:`KINDS` order, rows and cases as configured."""
     df = pd.DataFrame([_row(Path(p)) for p in metrics])
+    df["family"] = df["case"].map({c: _family(c) for c in df["case"].unique()})
     df = df.reindex(columns=COLUMNS)
     rank = df["kind"].map({k: i for i, k in enumerate(KINDS)}).fillna(len(KINDS))
-    df = df.iloc[np.argsort(rank.to_numpy(), kind="stable")]  # kinds in KINDS order, rows as configured
-    wide = df.pivot(index="label", columns="case", values="iou_mean")  # failed runs stay as NaN ("-")
-    wide = wide.loc[df["label"].drop_duplicates(), df["case"].drop_duplicates()]  # config order
+    return df.iloc[np.argsort(rank.to_numpy(), kind="stable")].reset_index(drop=True)
+
+
+def _spread(values: pd.Series) -> dict:
+    v = values.dropna().to_numpy(float)
+    return {"mean": float(v.mean()) if v.size else np.nan, "std": float(v.std(ddof=1)) if v.size > 1 else np.nan,
+            "worst": float(v.min()) if v.size else np.nan}
+
+
+def summary_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Per (row, case) over seeds, then per (row, class, split, family) over cases (module docstring)."""
+    keys = ["row", "label", "kind", "split", "generator", "family", "case"]
+    lines = []
+    for key, g in df.groupby(keys, sort=False):
+        line = dict(zip(keys, key), n_seeds=len(g), n_failed=int(g["iou_mean"].isna().sum()))
+        for m in SPREAD:
+            s = _spread(g[m])
+            line.update({m: s["mean"], f"{m}_std": s["std"], f"{m}_worst": s["worst"]})
+        line.update({m: float(g[m].mean()) if g[m].notna().any() else np.nan for m in MEANS})
+        lines.append(line)
+    per_case = pd.DataFrame(lines)
+    groups = {}  # (split, generator, family) -> every case of the table in it
+    for (split, gen), g in per_case.groupby(["split", "generator"], sort=False):
+        cases = g.drop_duplicates("case")
+        if cases["family"].nunique() > 1:  # else in/out would repeat "all"
+            for family in ("in", "out"):
+                groups[(split, gen, family)] = list(cases.loc[cases["family"] == family, "case"])
+        groups[(split, gen, "all")] = list(cases["case"])
+    aggregates = []
+    for row, g in per_case.groupby("row", sort=False):
+        for (split, gen, family), cases in groups.items():
+            part = g[g["case"].isin(cases) & (g["split"] == split)]
+            if len(part) < len(cases):  # the row skipped some of the group's cases: no average
+                continue
+            runs = df[(df["row"] == row) & df["case"].isin(cases)]
+            by_seed = runs.pivot_table(index="seed", columns="case", values="iou_mean", aggfunc="first")
+            complete = by_seed.dropna()  # seeds every case of the group has
+            agg = {k: part.iloc[0][k] for k in ("row", "label", "kind")}
+            agg.update(split=split, generator=gen, family=family, case=f"{CLASS_NAMES.get(gen, gen)}/{split}/{family}",
+                       n_cases=len(part), n_seeds=int(part["n_seeds"].max()),
+                       n_failed=int((part["n_failed"] == part["n_seeds"]).sum()))
+            for m in SPREAD:
+                agg[m] = float(part[m].mean()) if part[m].notna().all() else np.nan
+                agg[f"{m}_worst"] = float(part[m].min()) if part[m].notna().all() else np.nan
+            agg["iou_mean_std"] = (float(complete.mean(axis=1).std(ddof=1))
+                                   if len(complete) > 1 and agg["n_failed"] == 0 else np.nan)
+            agg.update({m: float(part[m].mean()) if part[m].notna().any() else np.nan for m in MEANS})
+            aggregates.append(agg)
+    out = pd.concat([per_case, pd.DataFrame(aggregates)], ignore_index=True)
+    front = ["row", "label", "kind", "split", "generator", "family", "case", "n_cases", "n_seeds", "n_failed"]
+    return out.reindex(columns=front + [c for c in out.columns if c not in front])
+
+
+def _cell(mean: float, std: float, worst: float, n_failed: int = 0, n: int = 1) -> str:
+    if not np.isfinite(mean):
+        return "-"
+    text = f"{mean:.3f}"
+    if np.isfinite(std):
+        text += f" ± {std:.3f}"
+    if np.isfinite(worst) and n > 1:
+        text += f" (worst {worst:.3f})"
+    if n_failed:
+        text += f" ({n_failed} failed)"
+    return text
+
+
+def markdown(summary: pd.DataFrame, metric: str = "iou_mean") -> str:
+    """Markdown tables of ``metric`` (rows x cases and aggregates), one per class and split, test
+    split first: cells are mean ± standard deviation over seeds (worst seed); aggregates are means
+    over the cases, ± the standard deviation over seeds of that mean (worst case)."""
+    out = []
+    for split in ("test", "dev"):
+        for gen in summary["generator"].dropna().unique():
+            part = summary[(summary["split"] == split) & (summary["generator"] == gen)]
+            if part.empty:
+                continue
+            cols = list(dict.fromkeys(part["case"]))
+            title = f"{CLASS_NAMES.get(gen, gen)}, {split} split"
+            out += [f"**{title}** ({metric})", "", "| row | " + " | ".join(cols) + " |",
+                    "|---" * (len(cols) + 1) + "|"]
+            for label, g in part.groupby("label", sort=False):
+                by_case = {r.case: r for r in g.itertuples()}
+                cells = []
+                for c in cols:
+                    r = by_case.get(c)
+                    if r is None:
+                        cells.append("")
+                        continue
+                    n = r.n_cases if isinstance(r.case, str) and "/" in r.case else r.n_seeds
+                    cells.append(_cell(getattr(r, metric), getattr(r, f"{metric}_std", np.nan),
+                                       getattr(r, f"{metric}_worst", np.nan), int(r.n_failed), int(n)))
+                out.append(f"| {label} | " + " | ".join(cells) + " |")
+            out.append("")
+    return "\n".join(out)
+
+
+def build_table(metrics: list[str], table_csv: str, wide_csv: str, summary_csv: str | None = None,
+                markdown_path: str | None = None) -> pd.DataFrame:
+    """Collect metrics into ``table_csv`` (long), ``summary_csv`` (over seeds and cases),
+    ``wide_csv`` (label x case mean IoU, aggregates last) and ``markdown_path``."""
+    df = long_table(metrics)
+    summary = summary_table(df)
+    wide = summary.pivot_table(index="label", columns="case", values="iou_mean", aggfunc="first", dropna=False)
+    cases = list(df["case"].drop_duplicates())
+    aggs = [c for c in summary["case"].drop_duplicates() if c not in cases]
+    wide = wide.reindex(index=list(df["label"].drop_duplicates()), columns=cases + aggs)  # failed runs: NaN ("-")
     with atomic_path(table_csv) as tmp:
         df.to_csv(tmp, index=False, float_format="%.4f")
     with atomic_path(wide_csv) as tmp:
         wide.to_csv(tmp, float_format="%.3f")
+    if summary_csv:
+        with atomic_path(summary_csv) as tmp:
+            summary.to_csv(tmp, index=False, float_format="%.4f")
+    if markdown_path:
+        with atomic_path(markdown_path) as tmp:
+            tmp.write_text(markdown(summary) + "\n" + markdown(summary, "shape_iou") + "\n")
     return df

@@ -75,25 +75,32 @@ def reference_line_step(name: str, reference: str, mesh: str, threads: int = 1, 
         write_reference_line(name, reference, Path(mesh).parent)
 
 
-def evaluate_step(reference: str, mesh: str, timing: str, metrics: str, preview: str, row: dict,
-                  n_views: int, res: int, grid: int, threads: int = 1, log=None):
-    """Metrics of one reconstruction, and ``row.json`` (table label, kind, wall time, note) beside
-    them. A run that recorded a failure (``failed`` in its info.json) gets no metrics, only the reason."""
+def evaluate_step(reference: str, truth: str, mesh: str, timing: str, metrics: str, preview: str, row: dict,
+                  seed: int, n_views: int, res: int, grid: int, threads: int = 1, log=None):
+    """Metrics of one reconstruction (with parameter recovery where the truth and the fit share a
+    generator), and ``row.json`` beside them (table label, kind, case split and class, seed, wall
+    time, note). A run that recorded a failure (``failed`` in its info.json) gets no metrics, only
+    the reason."""
     with _logged(log, threads):
         import json
 
+        from ipm.cases import case_split
         from ipm.io import write_json
         from ipm.metrics.evaluate import evaluate_files, failure_files
 
-        info_path = Path(mesh).parent / "info.json"
-        info = json.loads(info_path.read_text()) if info_path.exists() else {}
+        folder = Path(mesh).parent
+        info = json.loads((folder / "info.json").read_text()) if (folder / "info.json").exists() else {}
+        params = json.loads((folder / "params.json").read_text()) if (folder / "params.json").exists() else None
+        case = json.loads(Path(truth).read_text())
         if info.get("failed"):
             failure_files(info["failed"], metrics, preview)
         else:
-            evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview)
+            evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview,
+                           truth=case, params=params)
         seconds = json.loads(Path(timing).read_text()).get("seconds")
         note = f"failed: {info['failed']}" if info.get("failed") else info.get("note", "")
-        write_json(Path(metrics).parent / "row.json", {**row, "seconds": seconds, "note": note})
+        write_json(Path(metrics).parent / "row.json", {**row, "split": case_split(case), "generator": case["generator"],
+                                                       "seed": seed, "seconds": seconds, "note": note})
 
 
 def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, threads: int = 1, log=None):
@@ -103,16 +110,17 @@ def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, thr
         parts_sheet(reference, mesh, transforms, png)
 
 
-def table_step(metrics: list[str], table: str, wide: str, log=None):
+def table_step(metrics: list[str], table: str, wide: str, summary: str, markdown: str, log=None):
     with _logged(log, 1):
         from ipm.table import build_table
 
-        build_table(metrics, table, wide)
+        build_table(metrics, table, wide, summary, markdown)
 
 
-def report_step(table: str, wide: str, metrics: list[str], out: str, config: dict, input_dirs: dict, log=None):
+def report_step(table: str, wide: str, summary: str, metrics: list[str], out: str, config: dict, input_dirs: dict,
+                log=None):
     with _logged(log, 1):
         from reports.build import build_report
 
-        build_report(table_csv=table, wide_csv=wide, metrics=metrics, out_html=out, config=config,
-                     input_dirs=input_dirs)
+        build_report(table_csv=table, wide_csv=wide, summary_csv=summary, metrics=metrics, out_html=out,
+                     config=config, input_dirs=input_dirs)

@@ -16,6 +16,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ipm.io.atomic import atomic_path  # noqa: E402
@@ -40,18 +41,6 @@ def _img(path: Path | None = None, fig=None, cls: str = "") -> str:
     return f'<img class="{cls}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
 
 
-def _iou_bars(df: pd.DataFrame):
-    wide = df.pivot_table(index="case", columns="label", values="iou_mean", aggfunc="first")
-    fig, ax = plt.subplots(figsize=(8, 3.2))
-    wide.plot.bar(ax=ax, rot=0, width=0.8)
-    lo = max(0.0, float(wide.min().min()) - 0.05)
-    ax.set_ylim(lo, 1.0)
-    ax.set_ylabel("64-view silhouette IoU")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    ax.grid(axis="y", alpha=0.3)
-    return fig
-
-
 def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
     """Loss per evaluation: the diff path's stages and resolutions, or the GA's tree levels
     (leaves 0, root highest) with the best so far."""
@@ -71,39 +60,110 @@ def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
     return fig
 
 
+def _summary_html(summary: pd.DataFrame, split: str, metric: str) -> str:
+    """Per class: rows x (cases, aggregates) of ``metric`` as mean ± std (worst) over seeds."""
+    from ipm.table import markdown
+
+    part = summary[summary["split"] == split]
+    if part.empty:
+        return "<p class='note'>(no cases in this split)</p>"
+    md = markdown(part, metric)
+    out = []
+    for block in md.strip().split("\n\n"):
+        lines = [ln for ln in block.splitlines() if ln.strip()]
+        title, head, rows = lines[0].strip("*"), lines[2], lines[4:]
+        cells = lambda ln: [c.strip() for c in ln.strip().strip("|").split("|")]  # noqa: E731
+        out.append(f"<h3>{html.escape(title.split('**')[0])}</h3><table><tr>"
+                   + "".join(f"<th>{html.escape(c)}</th>" for c in cells(head)) + "</tr>"
+                   + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells(r)) + "</tr>" for r in rows)
+                   + "</table>")
+    return "\n".join(out)
+
+
+def _aggregate_bars(summary: pd.DataFrame):
+    """Class aggregates of the test split (mean over cases, error bar: std over seeds)."""
+    agg = summary[summary["case"].str.contains("/", na=False) & (summary["split"] == "test")]
+    if agg.empty:
+        return None
+    wide = agg.pivot_table(index="case", columns="label", values="iou_mean", aggfunc="first")
+    err = agg.pivot_table(index="case", columns="label", values="iou_mean_std", aggfunc="first").reindex_like(wide)
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    wide.plot.bar(ax=ax, rot=0, width=0.8, yerr=err.fillna(0.0), capsize=2)
+    ax.set_ylim(max(0.0, float(np.nanmin(wide.to_numpy())) - 0.05), 1.0)
+    ax.set_ylabel("64-view IoU, mean over cases")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.grid(axis="y", alpha=0.3)
+    return fig
+
+
 def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: str, config: dict,
-                 input_dirs: dict | None = None) -> None:
-    """Write ``out_html`` from the table and the per-case result folders; ``input_dirs`` maps a
+                 input_dirs: dict | None = None, summary_csv: str | None = None) -> None:
+    """Write ``out_html`` from the tables and the per-case result folders; ``input_dirs`` maps a
     case to the folder of its input views (relative to the working directory)."""
+    from ipm.table import summary_table
+
     df = pd.read_csv(table_csv)
-    wide = pd.read_csv(wide_csv, index_col=0)
+    summary = pd.read_csv(summary_csv) if summary_csv else summary_table(df)
     results = Path(table_csv).parent
+    splits = df.drop_duplicates("case").groupby("split", sort=False)["case"].apply(list).to_dict()
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>IPM-Bench report</title>"
              f"<style>{_CSS}</style></head><body><h1>IPM-Bench report</h1>",
-             f"<p class='note'>profile <b>{html.escape(str(config.get('profile')))}</b>, seed {config.get('seed')}, "
-             f"cases {', '.join(config.get('cases', []))}; machine {html.escape(platform.platform())}, "
-             f"{os.cpu_count()} CPUs. IoU: mean over {config.get('evaluate', {}).get('views')} Fibonacci-sphere "
-             f"views (DESIGN.md); reference lines are computed from the reference itself.</p>",
-             "<h2>Table 1: mean silhouette IoU</h2>", wide.to_html(float_format="%.3f", na_rep="-"),
-             _img(fig=_iou_bars(df)), "<h2>All metrics</h2>",
-             df.drop(columns=["row", "kind"]).to_html(index=False, float_format="%.4f", na_rep="-"),
-             "<h2>Wall time per method</h2><p class='note'>seconds per reconstruction, one thread each, "
-             "mean over cases</p>",
-             df.groupby("label", sort=False)["seconds"].agg(["mean", "min", "max"]).to_html(float_format="%.1f")]
+             f"<p class='note'>profile <b>{html.escape(str(config.get('profile')))}</b>, seeds "
+             f"{', '.join(map(str, config.get('seeds', [])))}; "
+             + "; ".join(f"{html.escape(k)} cases: {', '.join(map(html.escape, v))}" for k, v in splits.items())
+             + f"; report built on {html.escape(platform.platform())}, {os.cpu_count()} CPUs. IoU: mean over "
+             f"{config.get('evaluate', {}).get('views')} Fibonacci-sphere views (DESIGN.md); reference lines are "
+             "computed from the reference itself. The <b>test</b> split is scored, never tuned on; the <b>dev</b> "
+             "split is where defaults were chosen.</p>",
+             "<h2>Table 1: 64-view silhouette IoU, test split</h2><p class='note'>mean ± standard deviation over "
+             "seeds (worst seed); aggregates (class/split/family: in = made by the class's generator, out = built by "
+             "independent code): mean over the cases ± standard deviation over seeds of that mean (worst case)</p>",
+             _summary_html(summary, "test", "iou_mean")]
+    fig = _aggregate_bars(summary)
+    if fig is not None:
+        parts.append(_img(fig=fig))
+    parts += ["<h2>Shape IoU after the best similarity alignment, test split</h2><p class='note'>the same "
+              "64-view IoU after turning, moving and scaling the reconstruction onto the reference: what is left "
+              "is the shape's error, the rest of the gap to the world-frame IoU is placement</p>",
+              _summary_html(summary, "test", "shape_iou"),
+              "<h2>Dev split (defaults were tuned here)</h2>", _summary_html(summary, "dev", "iou_mean"),
+              _summary_html(summary, "dev", "shape_iou")]
+    rec = summary[summary["param_err"].notna() & ~summary["case"].str.contains("/", na=False)]
+    if not rec.empty:
+        cols = ["label", "split", "case", "n_seeds", "param_err", "param_err_max", "discrete_match", "yaw_err_deg",
+                "trans_err_rel", "scale_err_pct"]
+        parts += ["<h2>Parameter recovery (in-family cases)</h2><p class='note'>means over seeds: unit-cube error of "
+                  "the continuous parameters (mean, largest), share of discrete parameters recovered, yaw error "
+                  "(degrees; - for objects that look the same turned), translation error / reference height, scale "
+                  "error (%)</p>", rec[cols].to_html(index=False, float_format="%.3f", na_rep="-")]
+    parts += ["<h2>Wall time per method</h2><p class='note'>seconds per reconstruction, one thread each, "
+              "mean over cases and seeds</p>",
+              df.groupby("label", sort=False)["seconds"].agg(["mean", "min", "max"]).to_html(float_format="%.1f"),
+              "<details><summary>All runs, all metrics</summary>",
+              df.drop(columns=["row", "kind"]).to_html(index=False, float_format="%.4f", na_rep="-"), "</details>"]
     for case in config.get("cases", []):
-        parts.append(f"<div class='case'><h2>{html.escape(case)}</h2>")
+        runs = df[df["case"] == case]
+        split = runs["split"].iloc[0] if len(runs) else "?"
+        parts.append(f"<div class='case'><h2>{html.escape(case)} <span class='note'>({html.escape(split)})</span></h2>")
         synth = Path((input_dirs or {}).get(case, results / "synth" / case))
         parts.append("<p>input view and its mask</p>" + _img(synth / "rgb" / "000.png", cls="input") + " "
                      + _img(synth / "masks" / "000.png", cls="input"))
-        for row in df[df["case"] == case].itertuples():
-            folder = results / "evaluate" / row.row / case
-            if isinstance(row.note, str) and row.note.startswith("failed"):
-                parts.append(f"<h3>{html.escape(row.label)}: - ({html.escape(row.note)})</h3>")
+        for (row, label), g in runs.groupby(["row", "label"], sort=False):
+            per_seed = ", ".join(f"seed {int(r.seed)}: " + ("-" if pd.isna(r.iou_mean) else f"{r.iou_mean:.3f}")
+                                 for r in g.itertuples())
+            first = g.iloc[0]
+            seed_dir = f"s{int(first['seed'])}"
+            folder = results / "evaluate" / row / case / seed_dir
+            if isinstance(first["note"], str) and first["note"].startswith("failed"):
+                parts.append(f"<h3>{html.escape(label)}: - ({html.escape(first['note'])})</h3>")
                 continue
-            note = f" ({html.escape(row.note)})" if isinstance(row.note, str) and row.note else ""
-            parts.append(f"<h3>{html.escape(row.label)}: IoU {row.iou_mean:.3f}, volumetric IoU {row.viou:.3f}{note}</h3>")
+            note = f" ({html.escape(first['note'])})" if isinstance(first["note"], str) and first["note"] else ""
+            shape = "" if pd.isna(first.get("shape_iou")) else f", shape IoU {first['shape_iou']:.3f}"
+            parts.append(f"<h3>{html.escape(label)}: IoU {per_seed}{note}</h3><p class='note'>pictures of seed "
+                         f"{int(first['seed'])}: IoU {first['iou_mean']:.3f}{shape}, volumetric IoU "
+                         f"{first['viou']:.3f}</p>")
             parts.append(_img(folder / "preview.png"))
-            recon = results / "reconstruct" / row.row / case
+            recon = results / "reconstruct" / row / case / seed_dir
             if (recon / "parts.png").exists():
                 parts.append("<p class='note'>reference (top) and reconstruction (bottom), one colour per part</p>"
                              + _img(recon / "parts.png"))

@@ -85,6 +85,59 @@ def test_many_components_share_scenes_and_keep_their_union():
     assert occupancy(m, pts).tolist() == [True, True, True, True, False, False, False]
 
 
+def test_grid_occupancy_equals_general_path_and_component_union():
+    """Many small disjoint parts, a few intersecting ones and one sticking out of the grid: the grid
+    fast path, the general path and an OR over one scene per part agree, on grid and random points."""
+    from ipm.metrics.silhouette import open3d, raycasting_scene
+    from ipm.metrics.volume import occupancy_grid, voxel_centres
+
+    rng = np.random.default_rng(3)
+    small = [(trimesh.creation.box(extents=[0.13] * 3) if (i + j) % 2 else
+              trimesh.creation.icosphere(subdivisions=1, radius=0.08)).apply_translation([x, y, 1.1 + 0.3 * (i % 3)])
+             for i, x in enumerate(np.linspace(-1.4, 1.4, 9)) for j, y in enumerate(np.linspace(-1.4, 1.4, 9))]
+    big = [box(0.05), box(0.55), sphere(-0.6).apply_scale(0.45),
+           trimesh.creation.icosphere(radius=0.3).apply_translation([1.6, 1.4, 1.5])]
+    m = trimesh.util.concatenate(small + big)
+    bounds = np.array([[-2.0] * 3, [2.0] * 3])  # centres on box()'s faces: cast or not, alike in both paths
+    assert np.array_equal(occupancy_grid(m, bounds, 20), occupancy(m, voxel_centres(bounds, 20)))
+    m.apply_translation(rng.uniform(-0.01, 0.01, 3))  # off the grid's planes, where parity is well defined
+    parts = m.split(only_watertight=False)
+
+    def union(pts):
+        query = open3d().core.Tensor(pts.astype(np.float32))
+        return np.any([raycasting_scene(p).compute_occupancy(query, nsamples=3).numpy() > 0.5 for p in parts], axis=0)
+
+    for bounds, grid in ((m.bounds, 24), (m.bounds * [[0.7, 0.8, 0.9], [0.9, 0.6, 0.95]], 17)):
+        pts = voxel_centres(bounds, grid)
+        fast = occupancy_grid(m, bounds, grid)
+        assert fast.any() and not fast.all()
+        assert np.array_equal(fast, occupancy(m, pts)) and np.array_equal(fast, union(pts))
+    pts = rng.uniform(m.bounds[0] - 0.2, m.bounds[1] + 0.2, size=(20000, 3))
+    inside = occupancy(m, pts)
+    assert inside.any() and np.array_equal(inside, union(pts))
+    odd = np.array([[np.nan, 0.0, 0.0], [0.0, np.inf, 0.0], [0.05, 0.0, 0.0]])  # non-finite points are outside
+    assert occupancy(m, odd).tolist() == [False, False, True]
+    assert not occupancy_grid(trimesh.Trimesh(), m.bounds, 4).any()
+
+
+def test_disjoint_groups_is_the_greedy_partition():
+    """Random boxes on an integer lattice (many touch): groups are pairwise disjoint and the
+    same as a brute-force greedy colouring, largest box first."""
+    from ipm.metrics.volume import disjoint_groups
+
+    rng = np.random.default_rng(0)
+    lo = rng.integers(0, 20, size=(300, 3)).astype(float)
+    hi = lo + rng.integers(0, 4, size=(300, 3))
+    overlap = np.all((lo[:, None] <= hi[None]) & (hi[:, None] >= lo[None]), axis=2)
+    group_of = np.full(len(lo), -1)
+    for i in np.argsort(-np.prod(hi - lo, axis=1), kind="stable"):
+        group_of[i] = min(set(range(len(lo))) - set(group_of[overlap[i]].tolist()))
+    expected = [np.flatnonzero(group_of == g) for g in range(group_of.max() + 1)]
+    groups = disjoint_groups(lo, hi)
+    assert len(groups) == len(expected) and all(np.array_equal(a, b) for a, b in zip(groups, expected))
+    assert all(overlap[np.ix_(g, g)].sum() == len(g) for g in groups)
+
+
 def test_fibonacci_cameras_look_at_centre_from_fixed_distance():
     centre, radius = np.array([1.0, 2.0, -3.0]), 0.7
     cams = fibonacci_cameras(centre, radius, n_views=64, fov_deg=40.0)

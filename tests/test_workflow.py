@@ -26,7 +26,7 @@ def test_lint_is_clean():
     assert "Congratulations" in res.stdout + res.stderr
 
 
-@pytest.mark.parametrize("config", ["default", "smoke", "paper"])
+@pytest.mark.parametrize("config", ["default", "smoke", "paper", "benchmark"])
 def test_dry_run_plans_every_stage(config, tmp_path):
     res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
                     "--directory", str(tmp_path))
@@ -64,10 +64,23 @@ def test_rows_run_on_their_cases_and_the_ga_statistics_once_per_generator(tmp_pa
     rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\n"
                                 "methods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1}]\n")
     assert rc == 0, out
-    assert "results/reconstruct/diff_1v/cup_1/mesh.ply" in out and "diff_1v/tree_1" not in out
+    assert "results/reconstruct/diff_1v/cup_1/s0/mesh.ply" in out and "diff_1v/tree_1" not in out
     for gen in ("dishes", "trees"):
-        assert out.count(f"output: results/prepare/ga/{gen}.json") == 1
-    assert "results/reconstruct/ga_1v/tree_1/mesh.ply" in out and "results/reconstruct/ga_1v/cup_1/mesh.ply" in out
+        assert out.count(f"output: results/prepare/ga/{gen}/s0.json") == 1
+    assert "results/reconstruct/ga_1v/tree_1/s0/mesh.ply" in out and "results/reconstruct/ga_1v/cup_1/s0/mesh.ply" in out
+
+
+def test_seeded_rows_run_per_seed_and_unseeded_ones_once(tmp_path):
+    rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\nseeds: [3, 4]\n"
+                                "methods: [{name: ga, views: 1, cases: [tree_1]}, {name: visual_hull, views: 2},\n"
+                                "          {name: diffsdf, views: 2, seeds: [5]}]\n")
+    assert rc == 0, out
+    for seed in (3, 4):  # the GA and its statistics once per seed
+        assert f"results/reconstruct/ga_1v/tree_1/s{seed}/mesh.ply" in out
+        assert out.count(f"output: results/prepare/ga/trees/s{seed}.json") == 1
+    assert "visual_hull_2v/cup_1/s3/mesh.ply" in out and "visual_hull_2v/cup_1/s4/" not in out  # no random choices
+    assert "diffsdf_2v/tree_1/s5/mesh.ply" in out and "diffsdf_2v/tree_1/s3/" not in out  # the row's own seeds
+    assert "line_convex_hull/tree_1/s3/mesh.ply" in out and "line_convex_hull/tree_1/s4/" not in out
 
 
 @pytest.mark.slow
@@ -76,28 +89,50 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
                     "--directory", str(tmp_path))
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     table = pd.read_csv(tmp_path / "results/table.csv")
-    assert set(table["case"]) == {"cup_1", "cup_ext", "tree_1"}
+    cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet"}
+    assert set(table["case"]) == cases
     assert set(table["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "diffSDF-style (2 views)",
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
                                    "convex hull (reference)", "bounding sphere (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    assert len(table) == 3 * 7 - 1  # the diff path skips the tree
-    assert set(table.loc[table["label"] == "ours (diff, 1 view)", "case"]) == {"cup_1", "cup_ext"}
+    # diff: 2 cases x 2 seeds; GA, COLMAP: their cases; the rest: every case, once
+    assert len(table) == 4 + 2 + 1 + 4 * len(cases)
+    diff = table[table["label"] == "ours (diff, 1 view)"]
+    assert set(diff["case"]) == {"cup_1", "cup_t2"} and sorted(diff["seed"]) == [0, 0, 1, 1]
+    assert set(table.loc[table["case"] == "cup_t2", "split"]) == {"test"}
+    assert set(table.loc[table["case"] == "cup_1", "split"]) == {"dev"}
+    assert set(table.loc[table["case"] == "cup_goblet", "family"]) == {"out"}
     # every row has metrics, or no metrics and the reason it failed (COLMAP on tiny images)
     failed = table["note"].fillna("").str.startswith("failed: ")
     assert (table.loc[failed, "label"] == "COLMAP known poses (16 views)").all()
     ok = table[~failed]
     assert ok["iou_mean"].between(0, 1).all() and ok["viou"].between(0, 1).all()
+    assert (ok["shape_iou"] >= ok["iou_mean"] - 1e-9).all()  # alignment never lowers the IoU
     assert table.loc[failed, "iou_mean"].isna().all()
+    # parameter recovery: in-family cases of the generator the row fits, nowhere else
+    has_rec = ok["param_err"].notna()
+    assert set(ok.loc[has_rec, "label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)"}
+    assert (ok.loc[has_rec, "family"] == "in").all() and ok.loc[has_rec, "discrete_match"].between(0, 1).all()
     hull = table[table["label"] == "convex hull (reference)"]["iou_mean"]
     sphere = table[table["label"] == "bounding sphere (reference)"]["iou_mean"]
     assert (hull.values > sphere.values).all()  # the hull is the tighter reference line
+    summary = pd.read_csv(tmp_path / "results/table_summary.csv")
+    d = summary[(summary["label"] == "ours (diff, 1 view)") & (summary["case"] == "cup_1")].iloc[0]
+    runs = diff.loc[diff["case"] == "cup_1", "iou_mean"]
+    assert d["n_seeds"] == 2 and abs(d["iou_mean"] - runs.mean()) < 1e-4 and abs(d["iou_mean_worst"] - runs.min()) < 1e-4
+    aggs = set(summary.loc[summary["label"] == "visual hull (2 views)", "case"]) - cases
+    assert aggs == {"cups/dev/in", "cups/dev/out", "cups/dev/all", "cups/test/in", "cups/test/out", "cups/test/all",
+                    "trees/dev/all"}
+    md = (tmp_path / "results/table1.md").read_text()
+    assert md.index("cups, test split") < md.index("cups, dev split")  # Table 1 is the test split
     html = (tmp_path / "results/report/index.html").read_text()
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
-    assert (tmp_path / "results/reconstruct/diff_1v/cup_1/parts.png").is_file()
-    assert (tmp_path / "results/reconstruct/ga_1v/tree_1/parts.png").is_file()
-    assert (tmp_path / "results/prepare/ga/trees.json").is_file()
+    assert "test split" in html and "Parameter recovery" in html
+    assert (tmp_path / "results/reconstruct/diff_1v/cup_1/s1/parts.png").is_file()
+    assert (tmp_path / "results/reconstruct/ga_1v/tree_1/s0/parts.png").is_file()
+    assert (tmp_path / "results/prepare/ga/trees/s0.json").is_file()
+    assert (tmp_path / "logs/benchmark/reconstruct/diff_1v/cup_1/s0.tsv").is_file()
     wide = pd.read_csv(tmp_path / "results/table_iou.csv", index_col=0)
-    assert list(wide.columns) == ["cup_1", "cup_ext", "tree_1"]
+    assert list(wide.columns)[:5] == ["cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet"]
     assert wide.loc["ours (diff, 1 view)", "tree_1"] != wide.loc["ours (diff, 1 view)", "tree_1"]  # NaN: "-"
     assert (tmp_path / "results/synth/cup_1/ring16/transforms.json").is_file()

@@ -27,7 +27,7 @@ def carve(views, lo: np.ndarray, hi: np.ndarray, n: int, progress: bool = False,
     return occ.reshape(n, n, n)
 
 
-@method("visual_hull", "visual hull ({views})", layout="hemi")
+@method("visual_hull", "visual hull ({views})", layout="hemi", seeded=False)
 def run_visual_hull(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                     n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline visual_hull``: OUT/mesh.ply (world frame), timing.json, info.json."""

@@ -117,6 +117,24 @@ class Generator:
     lods: tuple[int, ...] = (0, 1, 2)
     differentiable: bool = True
     """False for generators without a JAX positions function (searched by the GA path only)."""
+    distance_ignores: tuple[str, ...] = ()
+    """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
+    seeds are far apart in the unit cube, yet they do not make a different kind of object)."""
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """A random object of the generator's family (physical parameters), for the test split's
+        in-family cases (``ipm.cases``). Default: uniform in the unit cube."""
+        return self.spec.from_unit(rng.random(len(self.spec)))
+
+    def active(self, x: np.ndarray) -> np.ndarray:
+        """Mask (n,) of the parameters that shape the object ``x``; the others are inert for it
+        (a handle's parameters when it has none). Default: all of them."""
+        return np.ones(len(self.spec), bool)
+
+    def yaw_symmetric(self, x: np.ndarray) -> bool:
+        """True if the object ``x`` looks the same turned about its vertical axis (a yaw error
+        means nothing for it). Default: False."""
+        return False
 
     def topology_key(self, x: np.ndarray) -> tuple:
         """The discrete parameter values that decide the topology."""

@@ -79,6 +79,49 @@ class Dishes(Generator):
     def topology_key(self, x):
         return (int(round(float(x[self.spec.index["has_handle"]]))),)
 
+    def active(self, x):
+        """Without a handle, the handle's parameters are inert."""
+        on = np.ones(len(self.spec), bool)
+        if not self.topology_key(x)[0]:
+            on[self.spec.index["handle_thickness"]:] = False
+        return on
+
+    def yaw_symmetric(self, x):
+        """A body of revolution without a handle."""
+        return not self.topology_key(x)[0]
+
+    def sample(self, rng, handle: bool | None = None):
+        """A random plausible vessel (the test split's sampler), not a preset: a smooth profile from
+        a base and a rim radius (0.15-0.5 and 0.15-0.75 object units) joined by a power curve with a
+        bulge or waist, height 0.35-1.2, and (with probability 1/2, or as ``handle`` says) a C- or
+        D-shaped handle whose ends stay on the body, with smooth radius and thickness sequences."""
+        spec, ix = self.spec, self.spec.index
+        x = spec.default.copy()
+        t = np.linspace(0.0, 1.0, N_PROFILE)
+        r0, r1 = rng.uniform(1.5, 5.0), rng.uniform(1.5, 7.5)
+        gamma = float(np.exp(rng.uniform(np.log(0.4), np.log(2.5))))
+        bulge = rng.uniform(-1.0, 1.5)
+        x[:N_PROFILE] = np.clip(r0 + (r1 - r0) * t**gamma + bulge * np.sin(np.pi * t), 0.3, 8.0)
+        x[ix["y_scale"]] = rng.uniform(0.35, 1.2)
+        with_handle = bool(rng.random() < 0.5) if handle is None else bool(handle)
+        x[ix["has_handle"]] = float(with_handle)
+        if with_handle:
+            height = rng.uniform(0.4, 0.6)
+            s = np.linspace(0.0, 1.0, N_HANDLE)
+            thickness = rng.uniform(0.03, 0.07)
+            coef = np.clip(1.0 + rng.uniform(-0.3, 0.5) * np.sin(np.pi * s) + rng.uniform(-0.4, 0.4) * (s - 0.5),
+                           0.3, 2.0)
+            # largest offset of the handle's ends from its centre that keeps the tube on the body
+            reach = max(min(height, 1.0 - height) - thickness * coef.max() / x[ix["y_scale"]] - 0.02, 0.12)
+            base = rng.uniform(0.12, max(reach, 0.15))
+            rho = base * (1.0 + rng.uniform(-0.3, 0.3) * (s - 0.5) + rng.uniform(-0.2, 0.4) * np.sin(np.pi * s))
+            rho *= min(1.0, reach / np.max(rho * np.abs(np.cos(np.pi * s))))  # the ends' heights: +-rho cos
+            x[ix["handle_thickness"]] = thickness
+            x[ix["handle_height"]] = height
+            x[ix["handle_radius_0"]:ix["handle_radius_0"] + N_HANDLE] = np.clip(rho, 0.1, 0.5)
+            x[ix["handle_thick_coef_0"]:ix["handle_thick_coef_0"] + N_HANDLE] = coef
+        return spec.clip(x)
+
     @lru_cache(maxsize=None)
     def topology(self, key, lod):
         n_p, n_r, n_s, n_c = _LOD[lod]

@@ -644,6 +644,29 @@ def _graph(stems: list[_Stems]):
             np.concatenate(lev))
 
 
+_SAMPLE_RANGES = {
+    "height": (1.0, 1.7), "base_size": (0.05, 0.5), "levels": (2, 3), "ratio": (0.01, 0.04),
+    "ratio_power": (1.0, 1.6), "flare": (0.0, 0.8), "taper": (0.7, 1.0), "attract_up": (-0.3, 0.8),
+    "rotate_v": (0.0, 40.0), "trunk_taper": (0.6, 1.0), "trunk_curve": (-20.0, 20.0),
+    "trunk_curve_back": (-20.0, 20.0), "trunk_curve_v": (0.0, 60.0), "trunk_curve_res": (3, 10),
+    "base_splits": (0, 3), "trunk_seg_splits": (0.0, 0.4), "split_angle": (10.0, 50.0), "split_angle_v": (0.0, 20.0),
+    **{f"l{n}_{k}": r for n, levels in ((1, {"branches": (10, 50), "length": (0.25, 0.9)}),
+                                         (2, {"branches": (3, 12), "length": (0.2, 0.6)}),
+                                         (3, {"branches": (2, 8), "length": (0.2, 0.6)}))
+       for k, r in {**levels, "length_v": (0.0, 0.2), "down_angle": (20.0, 90.0), "down_angle_v": (-40.0, 20.0),
+                    "rotate": (100.0, 160.0), "curve": (-40.0, 40.0), "curve_back": (-20.0, 20.0),
+                    "curve_v": (0.0, 100.0), "curve_res": (2, 6), "seg_splits": (0.0, 0.3)}.items()},
+    "leaves": (4, 25), "leaf_scale": (0.02, 0.08), "leaf_scale_x": (0.3, 1.2), "leaf_start": (0.0, 0.4),
+    "leaf_down_angle": (20.0, 70.0),
+}
+"""Ranges of :meth:`Trees.sample` where they are narrower than the parameters' bounds: trees with
+leaves and two or three branch levels, branches that leave their parent at 20-90 degrees and
+bend moderately, trunks that stand, at most 1.7 tall (2 after the largest pose scale, the scene's
+limit). Chosen from Weber and Penn's parameter meanings before any
+reconstruction of a sampled tree; ``shape``, ``leaf_shape`` and ``seed`` are drawn over their
+whole ranges."""
+
+
 def _preset(spec, **values):
     x = spec.default.copy()
     for name, v in values.items():
@@ -703,6 +726,29 @@ class Trees(Generator):
             **_levels(2, 8, 0.5, 0.1, 45.0, 10.0, 140.0, 0.0, 0.0, 40.0, 2, 0.0),
             leaves=12, leaf_scale=0.06, leaf_scale_x=0.7, leaf_shape=0, leaf_start=0.1, leaf_down_angle=45.0),
     }
+
+    distance_ignores = ("seed",)
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """A random plausible tree (the test split's sampler): each parameter uniform over
+        ``_SAMPLE_RANGES`` (integers uniform over their values), else over its bounds."""
+        spec = self.spec
+        x = np.empty(len(spec))
+        for i, name in enumerate(spec.names):
+            lo, hi = _SAMPLE_RANGES.get(name, (spec.lower[i], spec.upper[i]))
+            x[i] = rng.integers(int(lo), int(hi) + 1) if spec.discrete[i] else rng.uniform(lo, hi)
+        return spec.clip(x)
+
+    def active(self, x: np.ndarray) -> np.ndarray:
+        """Levels below ``levels`` and, without leaves, the leaf parameters are inert."""
+        p = self.spec.as_dict(self.spec.clip(x))
+        on = np.ones(len(self.spec), bool)
+        for i, name in enumerate(self.spec.names):
+            if name[0] == "l" and name[1].isdigit() and int(name[1]) > p["levels"]:
+                on[i] = False
+            if name.startswith("leaf_") and p["leaves"] == 0:
+                on[i] = False
+        return on
 
     def preset(self, name: str) -> np.ndarray:
         """A copy of the parameter vector of preset ``name`` (``UserError`` if unknown)."""

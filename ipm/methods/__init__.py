@@ -13,15 +13,16 @@ METHODS: Registry = Registry("method")
 
 
 def method(name: str, label: str, layout: str = "hemi", uses_generator: bool = False,
-           differentiable_only: bool = False, prepare=None):
+           differentiable_only: bool = False, prepare=None, seeded: bool = True):
     """Register a method under ``name``; ``label`` is the table's row label, with ``{views}``
     standing for "1 view" / "N views". ``prepare(generator, out_path, profile=, seed=, progress=)``,
-    if given, writes a file once per generator (a cached pipeline stage) that the method takes
-    as ``prepared=out_path``."""
+    if given, writes a file per generator and seed (a cached pipeline stage) that the method takes
+    as ``prepared=out_path``. ``seeded=False`` marks a method without random choices: the
+    pipeline runs it once per case instead of once per seed."""
 
     def deco(fn):
         fn.label, fn.layout, fn.uses_generator = label, layout, uses_generator
-        fn.differentiable_only, fn.prepare = differentiable_only, prepare
+        fn.differentiable_only, fn.prepare, fn.seeded = differentiable_only, prepare, seeded
         return METHODS.register(name)(fn)
 
     return deco

@@ -7,6 +7,7 @@ from scipy.spatial import cKDTree
 
 from ipm.io.atomic import atomic_path
 
+from .align import shape_iou
 from .silhouette import bounding_sphere, check_reference, finite_part, silhouette_iou, silhouette_masks
 from .volume import volumetric_iou
 
@@ -50,11 +51,15 @@ def triangle_quality(mesh: trimesh.Trimesh, radius: float) -> dict:
 
 def evaluate_meshes(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,
                     grid: int = 128, seed: int = 0) -> dict:
-    """Every metric as a flat JSON-serialisable dict (silhouette per-view IoUs under ``iou_per_view``)."""
+    """Every metric as a flat JSON-serialisable dict (silhouette per-view IoUs under ``iou_per_view``;
+    ``shape_iou``: the same IoU after the best similarity alignment, ``ipm.metrics.align``)."""
     sil = silhouette_iou(reference, mesh, n_views, res)
     sil["iou_per_view"] = sil.pop("per_view")
+    shape = shape_iou(reference, mesh, n_views, res)
+    shape.pop("world_iou")  # the same number as iou_mean
     return {
         **sil,
+        **shape,
         **volumetric_iou(reference, mesh, grid),
         **chamfer(reference, mesh, seed=seed),
         **triangle_quality(mesh, bounding_sphere(reference)[1]),
@@ -78,8 +83,9 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
 
 
 def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: int = 256, grid: int = 128,
-                   preview_path=None, seed: int = 0) -> dict:
-    """``ipm evaluate``: metrics of a mesh file against a reference file, written as JSON."""
+                   preview_path=None, seed: int = 0, truth: dict | None = None, params: dict | None = None) -> dict:
+    """``ipm evaluate``: metrics of a mesh file against a reference file, written as JSON; with the
+    case's ground truth and the reconstruction's params.json, also parameter recovery."""
     from ipm.errors import UserError
     from ipm.io import load_mesh, write_json
 
@@ -91,6 +97,10 @@ def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: 
         metrics = evaluate_meshes(reference, mesh, n_views=n_views, res=res, grid=grid, seed=seed)
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    if truth is not None:
+        from .recovery import parameter_recovery
+
+        metrics.update(parameter_recovery(truth, params, float(np.ptp(reference.vertices[:, 1]))))
     write_json(out_path, metrics)
     if preview_path is not None:
         preview_png(reference, mesh, str(preview_path))

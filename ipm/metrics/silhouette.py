@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from ipm.runtime import thread_count
+
 FOV_DEG = 40.0
 DISTANCE_MARGIN = 1.25  # camera distance = margin * r / sin(fov / 2): the sphere fills 80 % of the view
 
@@ -99,7 +101,7 @@ def raycast_masks(mesh: trimesh.Trimesh, cams: list, res: int = 256, fov_deg: fl
     rays = np.empty((len(c2w), res * res, 6), dtype=np.float32)
     rays[..., :3] = c2w[:, None, :3, 3]
     rays[..., 3:] = np.einsum("nij,pj->npi", c2w[:, :3, :3], pix)
-    hit = raycasting_scene(mesh).test_occlusions(open3d().core.Tensor(rays)).numpy()
+    hit = raycasting_scene(mesh).test_occlusions(open3d().core.Tensor(rays), nthreads=thread_count()).numpy()
     return hit.reshape(len(c2w), res, res)
 
 

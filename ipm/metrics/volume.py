@@ -3,6 +3,8 @@
 import numpy as np
 import trimesh
 
+from ipm.runtime import thread_count
+
 from .silhouette import check_reference, finite_part, open3d, raycasting_scene
 
 OCCUPANCY_RAYS = 3  # odd number of parity rays per point, majority vote guards against edge/vertex hits
@@ -23,20 +25,9 @@ def _welded(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return mesh
 
 
-def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Inside test (N,) bool: union of the per-component ray-parity occupancies.
-
-    Parity counting over the whole mesh would call the overlap of two intersecting closed parts
-    "outside", so components are tested apart and the results OR-ed. Components whose bounding
-    boxes are pairwise disjoint share one scene (:func:`disjoint_groups`): a point is inside at
-    most one of them, the others add even crossings, so the group's parity is their union. That
-    keeps a tree's ~10^4 leaves to tens or hundreds of scenes. Only points inside a member's
-    bounding box are cast.
-    """
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
-    inside = np.zeros(len(points), dtype=bool)
-    if len(mesh.faces) == 0:
-        return inside
+def _components(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray, np.ndarray, list, list]:
+    """The welded mesh, its closed parts' bounding boxes ``lo, hi`` (n, 3), the parts in each
+    :func:`disjoint_groups` group and each group's faces (members in order, faces ascending)."""
     welded = _welded(mesh)
     comp = trimesh.graph.connected_component_labels(welded.face_adjacency, node_count=len(welded.faces))
     tri = welded.vertices[welded.faces]  # (F, 3, 3)
@@ -45,52 +36,148 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     hi = np.full((n, 3), -np.inf)
     np.minimum.at(lo, comp, tri.min(axis=1))
     np.maximum.at(hi, comp, tri.max(axis=1))
-    order = np.argsort(points[:, 0], kind="stable")  # points by x: a box's slab is a slice
-    xs = points[order, 0]
-    i0, i1 = np.searchsorted(xs, lo[:, 0], "left"), np.searchsorted(xs, hi[:, 0], "right")
-    faces_by_comp = np.argsort(comp, kind="stable")
-    starts = np.searchsorted(comp[faces_by_comp], np.arange(n + 1))
+    groups = disjoint_groups(lo, hi)
+    group_of = np.empty(n, dtype=np.int64)
+    for g, members in enumerate(groups):
+        group_of[members] = g
+    faces = np.lexsort((np.arange(len(comp)), comp, group_of[comp]))  # by group, part, face
+    bounds = np.searchsorted(group_of[comp][faces], np.arange(len(groups) + 1))
+    return welded, lo, hi, groups, [faces[bounds[g]:bounds[g + 1]] for g in range(len(groups))]
 
-    def in_box(a: int, b: int, blo: np.ndarray, bhi: np.ndarray) -> np.ndarray:
-        cand = order[a:b]
-        p = points[cand, 1:]
-        return cand[np.all((p >= blo[1:]) & (p <= bhi[1:]), axis=1)]
 
-    for group in disjoint_groups(lo, hi):
-        glo, ghi = lo[group].min(0), hi[group].max(0)
-        g0, g1 = np.searchsorted(xs, glo[0], "left"), np.searchsorted(xs, ghi[0], "right")
-        if g1 - g0 <= (i1[group] - i0[group]).sum():  # one pass over the group's box is cheaper
-            sel = in_box(g0, g1, glo, ghi)
-        else:  # the points in each member's box (disjoint boxes: no repeats)
-            sel = np.concatenate([in_box(i0[k], i1[k], lo[k], hi[k]) for k in group])
+def _cast(welded: trimesh.Trimesh, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Ray-parity occupancy (N,) bool of ``points`` w.r.t. the closed parts made of ``faces``."""
+    part = trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False)
+    occ = raycasting_scene(part).compute_occupancy(open3d().core.Tensor(points.astype(np.float32)),
+                                                   nsamples=OCCUPANCY_RAYS, nthreads=thread_count()).numpy()
+    return occ > 0.5
+
+
+def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """Inside test (N,) bool: union of the per-component ray-parity occupancies.
+
+    Parity counting over the whole mesh would call the overlap of two intersecting closed parts
+    "outside", so components are tested apart and the results OR-ed. Components whose bounding
+    boxes are pairwise disjoint share one scene (:func:`disjoint_groups`): a point is inside at
+    most one of them, the others add even crossings, so the group's parity is their union. That
+    keeps a tree's ~10^4 leaves to tens or hundreds of scenes. Only points inside a member's
+    bounding box are cast. Grid points go faster through :func:`occupancy_grid` (same result).
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    inside = np.zeros(len(points), dtype=bool)
+    finite = np.flatnonzero(np.isfinite(points).all(axis=1))  # no other point is in any box
+    if len(mesh.faces) == 0 or finite.size == 0:
+        return inside
+    welded, lo, hi, groups, faces = _components(mesh)
+    # bucket the points in a coarse cell grid (~8 a cell); a box's candidates are its cells' points
+    cells = int(np.clip(round((finite.size / 8) ** (1 / 3)), 1, 128))
+    plo = points[finite].min(axis=0)
+    span = points[finite].max(axis=0) - plo
+    scale = cells / np.where(span > 0, span, 1.0)
+
+    def cell_of(x: np.ndarray) -> np.ndarray:  # monotone in x, so p in [lo, hi] has its cell in [cell(lo), cell(hi)]
+        return np.clip(np.floor((x - plo) * scale), 0, cells - 1).astype(np.int64)
+
+    ijk = cell_of(points[finite])
+    cell = (ijk[:, 0] * cells + ijk[:, 1]) * cells + ijk[:, 2]
+    order = np.argsort(cell, kind="stable")
+    cell_start = np.searchsorted(cell[order], np.arange(cells**3 + 1))
+    order = finite[order]  # point indices by cell
+    c0, c1 = cell_of(lo), cell_of(hi)
+    for members, group_faces in zip(groups, faces):
+        owner, ix, iy, iz = _index_boxes(c0[members], c1[members] - c0[members] + 1)
+        cid = (ix * cells + iy) * cells + iz
+        by_cell, offset = _expand(cell_start[cid + 1] - cell_start[cid])
+        cand = order[cell_start[cid][by_cell] + offset]
+        k = members[owner[by_cell]]
+        p = points[cand]
+        sel = cand[np.all((p >= lo[k]) & (p <= hi[k]), axis=1)]  # disjoint boxes: no repeats
         if sel.size:
-            faces = np.concatenate([faces_by_comp[starts[k]:starts[k + 1]] for k in group])
-            part = trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False)
-            occ = raycasting_scene(part).compute_occupancy(open3d().core.Tensor(points[sel].astype(np.float32)),
-                                                           nsamples=OCCUPANCY_RAYS).numpy()
-            inside[sel] |= occ > 0.5
+            inside[sel] |= _cast(welded, group_faces, points[sel])
     return inside
+
+
+def occupancy_grid(mesh: trimesh.Trimesh, bounds: np.ndarray, grid: int) -> np.ndarray:
+    """:func:`occupancy` at ``voxel_centres(bounds, grid)``, equal to it but without searching:
+    a part's box is an index box of the grid, so each group's candidates are gathered at once."""
+    axes = _grid_axes(bounds, grid)
+    inside = np.zeros(grid**3, dtype=bool)
+    if len(mesh.faces) == 0:
+        return inside
+    welded, lo, hi, groups, faces = _components(mesh)
+    # grid indices [start, start + extent) per axis whose centres lie in [lo, hi], as points >= lo & <= hi
+    start = np.stack([np.searchsorted(axes[k], lo[:, k], "left") for k in range(3)], axis=1)
+    extent = np.stack([np.searchsorted(axes[k], hi[:, k], "right") for k in range(3)], axis=1) - start
+    for members, group_faces in zip(groups, faces):
+        _, ix, iy, iz = _index_boxes(start[members], extent[members])
+        if ix.size:
+            points = np.stack([axes[0][ix], axes[1][iy], axes[2][iz]], axis=1)
+            inside[(ix * grid + iy) * grid + iz] |= _cast(welded, group_faces, points)
+    return inside
+
+
+def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For ``counts`` (m,), the owner in ``range(m)`` and the rank within it of each of ``sum(counts)`` items."""
+    counts = np.maximum(counts, 0)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    return owner, np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
+def _index_boxes(start: np.ndarray, extent: np.ndarray) -> tuple[np.ndarray, ...]:
+    """All integer points of the boxes ``[start, start + extent)`` (m, 3): box number and i, j, k
+    of each (an extent <= 0 on any axis is an empty box)."""
+    extent = np.maximum(extent, 0)
+    owner, rank = _expand(extent.prod(axis=1))
+    ny, nz = extent[owner, 1], extent[owner, 2]
+    return (owner, start[owner, 0] + rank // (ny * nz), start[owner, 1] + rank // nz % ny,
+            start[owner, 2] + rank % nz)
 
 
 def disjoint_groups(lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
     """Greedy partition of boxes ``[lo, hi]`` (n, 3) into groups whose boxes do not overlap
-    (touching counts as overlapping), largest boxes first."""
-    order = np.argsort(-np.prod(hi - lo, axis=1), kind="stable")
-    group_of = np.full(len(lo), -1)
+    (touching counts as overlapping), largest boxes first, each into the first group it fits.
+
+    The overlapping pairs come from a vectorised sweep along x, so only the colouring loops in Python.
+    """
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    n = len(lo)
+    by_x = np.argsort(lo[:, 0], kind="stable")
+    s_lo, s_hi = lo[by_x].T.copy(), hi[by_x].T.copy()  # per axis, in x order
+    # in x order, box p overlaps in x exactly the boxes q > p with lo_x[q] <= hi_x[p] (as lo <= hi)
+    count = np.maximum(np.searchsorted(s_lo[0], s_hi[0], "right") - np.arange(n) - 1, 0)
+    i, j = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for c0 in range(0, n, 2048):  # chunks bound the candidate pair arrays
+        owner, rank = _expand(count[c0:c0 + 2048])
+        p = c0 + owner
+        q = p + 1 + rank
+        for k in (1, 2):
+            keep = (s_lo[k][p] <= s_hi[k][q]) & (s_hi[k][p] >= s_lo[k][q])
+            p, q = p[keep], q[keep]
+        i.append(by_x[p])
+        j.append(by_x[q])
+    i, j = np.concatenate(i), np.concatenate(j)
+    src, dst = np.concatenate([i, j]), np.concatenate([j, i])
+    nbr_order = np.argsort(src, kind="stable")
+    nbrs, nbr_start = dst[nbr_order], np.searchsorted(src[nbr_order], np.arange(n + 1))
+    group_of = np.full(n, -1)
     n_groups = 0
-    for i in order:
-        overlapping = (group_of >= 0) & np.all((lo <= hi[i]) & (hi >= lo[i]), axis=1)
-        taken = set(group_of[overlapping].tolist())
-        group_of[i] = next(k for k in range(n_groups + 1) if k not in taken)  # the first free group
-        n_groups = max(n_groups, group_of[i] + 1)
+    for k in np.argsort(-np.prod(hi - lo, axis=1), kind="stable").tolist():
+        taken = set(group_of[nbrs[nbr_start[k]:nbr_start[k + 1]]].tolist())
+        g = next(g for g in range(n_groups + 1) if g not in taken)  # the first free group (-1: not yet placed)
+        group_of[k] = g
+        n_groups = max(n_groups, g + 1)
     return [np.flatnonzero(group_of == g) for g in range(n_groups)]
+
+
+def _grid_axes(bounds: np.ndarray, grid: int) -> list[np.ndarray]:
+    """Voxel-centre coordinates per axis of a regular grid x grid x grid subdivision of ``bounds`` (2, 3)."""
+    lo, hi = np.asarray(bounds, dtype=float)
+    return [lo[k] + (np.arange(grid) + 0.5) * (hi[k] - lo[k]) / grid for k in range(3)]
 
 
 def voxel_centres(bounds: np.ndarray, grid: int) -> np.ndarray:
     """Centres (grid^3, 3) of a regular grid x grid x grid subdivision of the box ``bounds`` (2, 3)."""
-    lo, hi = np.asarray(bounds, dtype=float)
-    axes = [lo[k] + (np.arange(grid) + 0.5) * (hi[k] - lo[k]) / grid for k in range(3)]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return np.stack(np.meshgrid(*_grid_axes(bounds, grid), indexing="ij"), axis=-1).reshape(-1, 3)
 
 
 def volumetric_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, grid: int = 128) -> dict:
@@ -104,8 +191,7 @@ def volumetric_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, grid: int 
     mesh = finite_part(mesh)
     boxes = [reference.bounds] + ([mesh.bounds] if len(mesh.faces) else [])
     bounds = np.array([np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)])
-    points = voxel_centres(bounds, grid)
-    a, b = occupancy(reference, points), occupancy(mesh, points)
+    a, b = occupancy_grid(reference, bounds, grid), occupancy_grid(mesh, bounds, grid)
     union = int((a | b).sum())
     return {
         "viou": float((a & b).sum() / union) if union else 1.0,

@@ -11,9 +11,29 @@ METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v"
 LINE_LABELS = {"convex_hull": "convex hull (reference)", "bounding_sphere": "bounding sphere (reference)"}
 
 
+wildcard_constraints:
+    seed="[0-9]+",
+    case="[A-Za-z0-9_]+",
+
+
 def method_cases(m):
     """Cases a methods entry runs on: its own ``cases`` list, else all of the config's."""
     return m.get("cases", config["cases"])
+
+
+def case_seeds(case):
+    """Seeds of a case: its split's ``split_seeds`` entry, else the config's ``seeds``."""
+    from ipm.cases import case_split
+    from ipm.synth import load_case
+
+    return config["split_seeds"].get(case_split(load_case(case)), config["seeds"])
+
+
+def method_seeds(m, case):
+    """Seeds a methods entry runs on ``case``: its own ``seeds`` list, else the case's; a method
+    without random choices (``seeded=False``) runs once, with the first of them."""
+    seeds = m.get("seeds", case_seeds(case))
+    return seeds if METHODS[m["name"]].seeded else seeds[:1]
 
 
 def check_methods():
@@ -23,6 +43,10 @@ def check_methods():
     from ipm.methods import check_generator
     from ipm.synth import load_case
 
+    from ipm.cases import case_split
+
+    for case in config["cases"]:
+        case_split(load_case(case))
     for m in config["methods"]:
         if m["name"] not in METHODS:
             raise ValueError(f"config: unknown method {m['name']!r} (known: {', '.join(METHODS.names())})")
@@ -84,11 +108,12 @@ def method_transforms(wildcards):
 
 def method_inputs(wildcards):
     """Inputs of a reconstruction: its views, and the method's preparation file for the case's
-    generator if it has a preparation stage (the GA's gene statistics, made once per generator)."""
+    generator and the run's seed if it has a preparation stage (the GA's gene statistics, made once
+    per generator and seed, so the spread over seeds includes theirs)."""
     m = method_of(wildcards)
     out = {"transforms": method_transforms(wildcards)}
     if METHODS[m["name"]].prepare is not None:
-        out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}.json"
+        out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}/s{wildcards.seed}.json"
     return out
 
 
@@ -107,22 +132,20 @@ def input_view_dirs():
     return out
 
 
-def recon_dir(wildcards):
-    return f"results/reconstruct/{wildcards.row}/{wildcards.case}"
-
-
 def all_metrics():
-    """Metrics files of every (row, case) pair: method rows on their cases, reference lines on all."""
-    out = [f"results/evaluate/{m['name']}_{m['views']}v/{case}/metrics.json"
-           for m in config["methods"] for case in method_cases(m)]
-    return out + expand("results/evaluate/line_{name}/{case}/metrics.json", name=config["reference_lines"],
-                        case=config["cases"])
+    """Metrics files of every (row, case, seed): method rows on their cases and seeds, reference
+    lines (no random choices) on every case with the first seed."""
+    out = [f"results/evaluate/{m['name']}_{m['views']}v/{case}/s{seed}/metrics.json"
+           for m in config["methods"] for case in method_cases(m) for seed in method_seeds(m, case)]
+    return out + [f"results/evaluate/line_{name}/{case}/s{case_seeds(case)[0]}/metrics.json"
+                  for name in config["reference_lines"] for case in config["cases"]]
 
 
 def all_parts_previews():
     """Part previews of the rows that fit a generator (baselines have no parts)."""
-    return [f"results/reconstruct/{m['name']}_{m['views']}v/{case}/parts.png"
-            for m in config["methods"] if METHODS[m["name"]].uses_generator for case in method_cases(m)]
+    return [f"results/reconstruct/{m['name']}_{m['views']}v/{case}/s{seed}/parts.png"
+            for m in config["methods"] if METHODS[m["name"]].uses_generator
+            for case in method_cases(m) for seed in method_seeds(m, case)]
 
 
 def get_final_output():

@@ -1,11 +1,12 @@
 rule prepare:
     output:
-        "results/prepare/{method}/{generator}.json",
+        "results/prepare/{method}/{generator}/s{seed}.json",
     log:
-        "logs/prepare/{method}/{generator}.log",
+        "logs/prepare/{method}/{generator}/s{seed}.log",
+    benchmark:
+        "logs/benchmark/prepare/{method}/{generator}/s{seed}.tsv"
     params:
         profile=config["profile"],
-        seed=config["seed"],
     threads: 1
     resources:
         mem_mb=3000,
@@ -19,10 +20,12 @@ rule reconstruct:
     input:
         unpack(method_inputs),
     output:
-        mesh="results/reconstruct/{row}/{case}/mesh.ply",
-        timing="results/reconstruct/{row}/{case}/timing.json",
+        mesh="results/reconstruct/{row}/{case}/s{seed}/mesh.ply",
+        timing="results/reconstruct/{row}/{case}/s{seed}/timing.json",
     log:
-        "logs/reconstruct/{row}/{case}.log",
+        "logs/reconstruct/{row}/{case}/s{seed}.log",
+    benchmark:
+        "logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv"
     wildcard_constraints:
         row=METHOD_ROW,
     params:
@@ -30,7 +33,6 @@ rule reconstruct:
         n_input_views=method_views,
         generator=case_generator,
         profile=config["profile"],
-        seed=config["seed"],
     threads: 1
     resources:
         mem_mb=4000,
@@ -44,10 +46,10 @@ rule reference_line:
     input:
         reference=rules.reference.output.reference,
     output:
-        mesh="results/reconstruct/line_{name}/{case}/mesh.ply",
-        timing="results/reconstruct/line_{name}/{case}/timing.json",
+        mesh="results/reconstruct/line_{name}/{case}/s{seed}/mesh.ply",
+        timing="results/reconstruct/line_{name}/{case}/s{seed}/timing.json",
     log:
-        "logs/reference_line/{name}/{case}.log",
+        "logs/reference_line/{name}/{case}/s{seed}.log",
     threads: 1
     resources:
         mem_mb=1000,

@@ -4,6 +4,8 @@ rule table:
     output:
         table=report("results/table.csv", caption="../report/table.rst", category="Table 1"),
         wide="results/table_iou.csv",
+        summary="results/table_summary.csv",
+        markdown="results/table1.md",
     log:
         "logs/table.log",
     threads: 1
@@ -19,6 +21,7 @@ rule report:
     input:
         table=rules.table.output.table,
         wide=rules.table.output.wide,
+        summary=rules.table.output.summary,
         metrics=all_metrics(),
         parts=all_parts_previews(),
     output:

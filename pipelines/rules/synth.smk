@@ -1,6 +1,7 @@
 rule reference:
     output:
         reference="results/synth/{case}/reference.ply",
+        truth="results/synth/{case}/ground_truth.json",
     log:
         "logs/reference/{case}.log",
     threads: 1
@@ -17,6 +18,8 @@ rule synth:
         transforms="results/synth/{case}/{layout}{n}/transforms.json",
     log:
         "logs/synth/{case}/{layout}{n}.log",
+    benchmark:
+        "logs/benchmark/synth/{case}/{layout}{n}.tsv"
     wildcard_constraints:
         layout="hemi|ring",
         n="[0-9]+",

@@ -1,5 +1,5 @@
 from ipm.workflow import prepare_step
 
 prepare_step(method=snakemake.wildcards.method, generator=snakemake.wildcards.generator, out=snakemake.output[0],
-             profile=snakemake.params.profile, seed=snakemake.params.seed, threads=snakemake.threads,
+             profile=snakemake.params.profile, seed=int(snakemake.wildcards.seed), threads=snakemake.threads,
              log=snakemake.log[0])

@@ -2,6 +2,6 @@ from ipm.workflow import reconstruct_step
 
 reconstruct_step(method=snakemake.params.method, transforms=snakemake.input.transforms,
                  mesh=snakemake.output.mesh, generator=snakemake.params.generator,
-                 profile=snakemake.params.profile, seed=snakemake.params.seed,
+                 profile=snakemake.params.profile, seed=int(snakemake.wildcards.seed),
                  n_input_views=snakemake.params.n_input_views,
                  prepared=snakemake.input.get("prepared"), threads=snakemake.threads, log=snakemake.log[0])

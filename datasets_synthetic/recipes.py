@@ -1,0 +1,562 @@
+"""Mesh recipes: shapes built by independent code (numpy, scipy, trimesh; no generator code), for
+the out-of-family cases of ``datasets_synthetic``.
+
+A recipe returns world-frame vertices (standing on y = 0, centred on the y axis), faces with
+outward winding (Mitsuba's area emitters are one-sided), a part label per face and UVs; every part
+is closed, so the volumetric metrics apply. Recipes with ``semantic = True`` have the tree parts
+branch (0) and foliage (1), and synth writes label images for them.
+"""
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from ipm.registry import Registry
+
+RECIPES: Registry = Registry("mesh recipe")
+
+
+def _cylindrical_uv(vertices: np.ndarray) -> np.ndarray:
+    """UVs for meshes that have none: angle about +y and height."""
+    u = (np.arctan2(vertices[:, 2], vertices[:, 0]) / (2 * np.pi)) % 1.0
+    y = vertices[:, 1]
+    return np.stack([u, (y - y.min()) / max(np.ptp(y), 1e-9)], 1)
+
+
+@RECIPES.register("footed_cup")
+def footed_cup(radius_bottom, radius_top, height, wall, foot_radius, foot_height,
+               handle_reach, handle_low, handle_high, handle_radius, sections=96):
+    """A cup on a foot ring with a three-bar handle: trimesh primitives, no dishes-generator code."""
+    r0, r1, h = radius_bottom, radius_top, height
+    prof = [[0.0, 0.0], [foot_radius, 0.0], [foot_radius, foot_height], [r0, foot_height + 0.01]]
+    prof += [[r0 + (r1 - r0) * s ** 1.5, foot_height + 0.01 + (h - foot_height - 0.01) * s]
+             for s in np.linspace(0.1, 1.0, 12)]
+    prof += [[r1 - wall, h]]
+    prof += [[r0 - wall + (r1 - r0) * s ** 1.5, foot_height + 0.04 + (h - foot_height - 0.04) * s]
+             for s in np.linspace(0.95, 0.0, 12)]
+    prof += [[0.0, foot_height + 0.04]]
+    body = trimesh.creation.revolve(np.array(prof)[::-1], sections=sections)
+    body.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
+
+    def radius_at(y):
+        s = np.clip((y - foot_height - 0.01) / (h - foot_height - 0.01), 0, 1)
+        return r0 + (r1 - r0) * s ** 1.5
+
+    y_lo, y_hi = handle_low * h, handle_high * h
+    x_lo, x_hi = radius_at(y_lo) - wall / 2, radius_at(y_hi) - wall / 2
+    x_out = max(x_lo, x_hi) + handle_reach
+    bars = [((x_lo, y_lo), (x_out, y_lo)), ((x_out, y_lo), (x_out, y_hi)), ((x_hi, y_hi), (x_out, y_hi))]
+    parts = [body]
+    for (a, b) in bars:
+        parts.append(trimesh.creation.cylinder(radius=handle_radius, segment=[[a[0], a[1], 0], [b[0], b[1], 0]],
+                                               sections=24))
+    for corner in ((x_out, y_lo), (x_out, y_hi)):
+        parts.append(trimesh.creation.icosphere(2, handle_radius).apply_translation([corner[0], corner[1], 0]))
+    for p in parts:
+        trimesh.repair.fix_normals(p)  # outward winding: Mitsuba's area emitters are one-sided
+    labels = np.concatenate([np.full(len(p.faces), 0 if i == 0 else 1) for i, p in enumerate(parts)])
+    mesh = trimesh.util.concatenate(parts)
+    return mesh.vertices, mesh.faces, labels, _cylindrical_uv(mesh.vertices)
+
+
+def _closed_tubes(chains: list[tuple[np.ndarray, np.ndarray]], sides: int):
+    """Closed tubes (rings along each polyline, fan caps at both ends, outward winding).
+
+    ``chains``: (points (k, 3), radii (k,)) per tube, k >= 2. Ring frames are carried along each
+    polyline by parallel transport, so tubes do not twist at bends.
+    """
+    verts, faces = [], []
+    n_v = 0
+    ang = 2 * np.pi * np.arange(sides) / sides
+    k0, k1 = np.arange(sides), (np.arange(sides) + 1) % sides
+    for pts, rad in chains:
+        k = len(pts)
+        seg = np.diff(pts, axis=0)
+        seg /= np.linalg.norm(seg, axis=1, keepdims=True)
+        tan = np.concatenate([seg[:1], seg[:-1] + seg[1:], seg[-1:]])
+        tan /= np.linalg.norm(tan, axis=1, keepdims=True)
+        ref = np.array([1.0, 0.0, 0.0]) if abs(tan[0, 0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+        nrm = np.cross(tan[0], ref)
+        nrm /= np.linalg.norm(nrm)
+        rings = []
+        for j in range(k):
+            nrm = nrm - np.dot(nrm, tan[j]) * tan[j]  # parallel transport: keep the normal, drop its tangent part
+            nrm /= np.linalg.norm(nrm)
+            bin_ = np.cross(tan[j], nrm)
+            rings.append(pts[j] + rad[j] * (np.cos(ang)[:, None] * nrm + np.sin(ang)[:, None] * bin_))
+        ring_v = np.concatenate(rings)
+        base = np.arange(k - 1)[:, None] * sides
+        a, a1 = base + k0, base + k1
+        b, b1 = a + sides, a1 + sides
+        side = np.concatenate([np.stack([a, a1, b1], -1).reshape(-1, 3), np.stack([a, b1, b], -1).reshape(-1, 3)])
+        c0, c1 = k * sides, k * sides + 1
+        cap0 = np.stack([np.full(sides, c0), k1, k0], -1)
+        cap1 = np.stack([np.full(sides, c1), (k - 1) * sides + k0, (k - 1) * sides + k1], -1)
+        verts.append(np.concatenate([ring_v, pts[:1], pts[-1:]]))
+        faces.append(np.concatenate([side, cap0, cap1]) + n_v)
+        n_v += len(verts[-1])
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def _leaf_lenses(base: np.ndarray, along: np.ndarray, across: np.ndarray, normal: np.ndarray, thickness: float):
+    """Closed diamond-shaped leaves: a rim of four points and an apex above and below the centre."""
+    rim = np.stack([base, base + 0.5 * along + 0.5 * across, base + along, base + 0.5 * along - 0.5 * across], 1)
+    centre = base + 0.5 * along
+    up, down = centre + thickness * normal, centre - thickness * normal
+    v = np.concatenate([rim, up[:, None], down[:, None]], 1).reshape(-1, 3)
+    o = (np.arange(len(base)) * 6)[:, None]
+    i, i1 = np.arange(4), (np.arange(4) + 1) % 4
+    top = np.stack([np.broadcast_to(o + 4, (len(base), 4)), o + i1, o + i], -1)
+    bottom = np.stack([np.broadcast_to(o + 5, (len(base), 4)), o + i, o + i1], -1)
+    return v, np.concatenate([top, bottom], 1).reshape(-1, 3)
+
+
+@RECIPES.register("space_colonisation_tree")
+def space_colonisation_tree(trunk_height=0.45, crown_radius=0.5, crown_height=0.95, crown_flatten=0.3,
+                            n_points=1500, influence=0.3, kill=0.07, step=0.035, up_tropism=0.15,
+                            pipe_exponent=2.5, tip_radius=0.0035, twig_nodes=3, leaves_per_node=3,
+                            leaf_length=0.075, leaf_width=0.045, sides=6, max_iterations=400, seed=0):
+    """A tree grown by space colonisation (Runions, Lane and Prusinkiewicz 2007), numpy + scipy only.
+
+    Attraction points fill a crown envelope (an ellipsoid of ``crown_radius`` and ``crown_height``
+    above a bare trunk of ``trunk_height``, its lower part pressed flatter by ``crown_flatten``).
+    From a root at the origin, each step every attraction point pulls its closest tree node
+    within ``influence``; a pulled node grows a child ``step`` along the mean direction to its
+    points (plus ``up_tropism`` towards the sky); points within ``kill`` of a node are removed.
+    Branch radii follow the pipe model (``r_parent ** e = sum r_child ** e``) from ``tip_radius``.
+    Branches are closed tubes (a chain follows its thickest child); closed diamond leaves
+    (``leaves_per_node`` per node) sit on the last ``twig_nodes`` nodes of every twig.
+    Returns world vertices (trunk base at the origin, standing on y = 0), faces, part labels
+    (0 branch, 1 foliage) and UVs.
+    """
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(seed)
+    centre_y = trunk_height + 0.5 * crown_height
+    semi = np.array([crown_radius, 0.5 * crown_height, crown_radius])
+    pts = np.empty((0, 3))
+    while len(pts) < n_points:  # uniform in the envelope by rejection
+        c = rng.uniform(-1.0, 1.0, (4 * n_points, 3))
+        c = c[np.sum(c**2, 1) <= 1.0]
+        c[:, 1] = np.where(c[:, 1] < 0, c[:, 1] * (1.0 - crown_flatten), c[:, 1])
+        pts = np.concatenate([pts, c * semi + [0.0, centre_y, 0.0]])
+    pts = pts[:n_points]
+    nodes, parent = [np.zeros(3)], [-1]
+    while nodes[-1][1] < trunk_height + 0.5 * influence:  # the bare trunk grows until the crown pulls it
+        wobble = rng.normal(0.0, 0.08, 3) * [1.0, 0.0, 1.0]
+        d = np.array([0.0, 1.0, 0.0]) + (wobble if len(nodes) > 2 else 0.0)
+        nodes.append(nodes[-1] + step * d / np.linalg.norm(d))
+        parent.append(len(nodes) - 2)
+    up = np.array([0.0, 1.0, 0.0])
+    for _ in range(max_iterations):
+        if len(pts) == 0:
+            break
+        node_arr = np.array(nodes)
+        dist, near = cKDTree(node_arr).query(pts, distance_upper_bound=influence)
+        pulled = np.isfinite(dist)
+        if not pulled.any():
+            break
+        pull = (pts[pulled] - node_arr[near[pulled]]) / dist[pulled, None]
+        grow = np.zeros((len(nodes), 3))
+        np.add.at(grow, near[pulled], pull)
+        new = []
+        for i in np.unique(near[pulled]):
+            d = grow[i] / max(np.linalg.norm(grow[i]), 1e-9) + up_tropism * up
+            norm = np.linalg.norm(d)
+            if norm < 0.3:  # opposite pulls cancel: no growth here
+                continue
+            p = node_arr[i] + step * d / norm
+            new.append(p)
+            nodes.append(p)
+            parent.append(int(i))
+        if not new:
+            break
+        node_arr = np.array(nodes)
+        d_kill, _ = cKDTree(node_arr).query(pts, distance_upper_bound=kill)
+        pts = pts[~np.isfinite(d_kill)]
+    nodes, parent = np.array(nodes), np.array(parent)
+    n = len(nodes)
+    children = [[] for _ in range(n)]
+    for i in range(1, n):
+        children[parent[i]].append(i)
+    radius = np.full(n, tip_radius)
+    for i in range(n - 1, 0, -1):  # children come after their parents
+        if children[i]:
+            radius[i] = np.sum(radius[children[i]] ** pipe_exponent) ** (1.0 / pipe_exponent)
+    radius[0] = np.sum(radius[children[0]] ** pipe_exponent) ** (1.0 / pipe_exponent) * 1.15  # root flare
+    # chains: each follows its thickest child; the other children start new chains at the fork
+    chains, stack = [], [(0, [0])]
+    while stack:
+        i, chain = stack.pop()
+        while children[i]:
+            kids = sorted(children[i], key=lambda c: -radius[c])
+            for c in kids[1:]:
+                stack.append((c, [i, c]))
+            i = kids[0]
+            chain.append(i)
+        if len(chain) >= 2:
+            rad = radius[chain].copy()
+            rad[0] = radius[chain[1]]  # a side branch starts with its own radius inside its parent
+            chains.append((nodes[chain], rad))
+    tv, tf = _closed_tubes(chains, sides)
+    # leaves on the last twig_nodes nodes of every twig (a tip and its parents while they are thin)
+    depth_to_tip = np.full(n, np.inf)
+    for i in range(n - 1, -1, -1):
+        depth_to_tip[i] = 0 if not children[i] else 1 + min(depth_to_tip[c] for c in children[i])
+    holders = np.nonzero(depth_to_tip < twig_nodes)[0]
+    holders = np.repeat(holders, leaves_per_node)
+    m = len(holders)
+    twig_dir = nodes[holders] - nodes[parent[holders]]
+    twig_dir /= np.linalg.norm(twig_dir, axis=1, keepdims=True)
+    along = twig_dir + rng.normal(0.0, 0.8, (m, 3))
+    along /= np.linalg.norm(along, axis=1, keepdims=True)
+    normal = up + rng.normal(0.0, 0.5, (m, 3))
+    normal -= np.sum(normal * along, 1, keepdims=True) * along
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    across = np.cross(normal, along)
+    size = rng.uniform(0.8, 1.2, (m, 1))
+    lv, lf = _leaf_lenses(nodes[holders], along * leaf_length * size, across * leaf_width * size, normal,
+                          0.05 * leaf_width)
+    v = np.concatenate([tv, lv])
+    f = np.concatenate([tf, lf + len(tv)])
+    labels = np.concatenate([np.zeros(len(tf), int), np.ones(len(lf), int)])
+    return v, f, labels, _cylindrical_uv(v)
+
+
+space_colonisation_tree.semantic = True
+"""Its parts are branch (0) and foliage (1): synth writes semantic label images (is_tree_case)."""
+
+
+def _revolved(profile, sections: int) -> trimesh.Trimesh:
+    """A closed solid of revolution about +y from a (radius, y) profile that starts and ends on the axis."""
+    solid = trimesh.creation.revolve(np.asarray(profile, float)[::-1], sections=sections)
+    solid.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # revolve's z -> y
+    return solid
+
+
+def _box(lo, hi, rotation=None) -> trimesh.Trimesh:
+    """An axis-aligned box from corner ``lo`` to ``hi``, optionally turned about its centre."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    tf = np.eye(4)
+    if rotation is not None:
+        tf[:3, :3] = rotation
+    tf[:3, 3] = 0.5 * (lo + hi)
+    return trimesh.creation.box(extents=hi - lo, transform=tf)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _perpendicular(d: np.ndarray, rng) -> np.ndarray:
+    """Random unit vectors perpendicular to the unit vectors ``d`` (n, 3)."""
+    r = rng.normal(size=d.shape)
+    r -= np.sum(r * d, -1, keepdims=True) * d
+    return _unit(r)
+
+
+def _rotate(v: np.ndarray, axis: np.ndarray, angle) -> np.ndarray:
+    """Rodrigues' rotation of ``v`` about the unit ``axis`` by ``angle`` (radians)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return v * c + np.cross(axis, v) * s + axis * np.dot(axis, v) * (1 - c)
+
+
+def _along(pts: np.ndarray, spacing: float, start: float = 0.0):
+    """Points every ``spacing`` along a polyline (from fraction ``start`` of its length) and the tangents there."""
+    seg = np.diff(pts, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    total = cum[-1]
+    t = np.arange(start * total + 0.5 * spacing, total, spacing)
+    if len(t) == 0:
+        t = np.array([0.5 * (1 + start) * total])
+    i = np.clip(np.searchsorted(cum, t, side="right") - 1, 0, len(seg) - 1)
+    w = ((t - cum[i]) / seg_len[i])[:, None]
+    return pts[i] + w * seg[i], seg[i] / seg_len[i, None]
+
+
+def _assemble(parts: list[trimesh.Trimesh], labels: list[int]):
+    """Concatenate closed parts (each wound outwards) with one label per part."""
+    for p in parts:
+        trimesh.repair.fix_normals(p)  # outward winding: Mitsuba's area emitters are one-sided
+    lab = np.concatenate([np.full(len(p.faces), k) for p, k in zip(parts, labels)])
+    mesh = trimesh.util.concatenate(parts)
+    return mesh.vertices, mesh.faces, lab, _cylindrical_uv(mesh.vertices)
+
+
+@RECIPES.register("tankard_lid")
+def tankard_lid(radius_bottom=0.3, radius_top=0.27, height=0.76, wall=0.025, floor=0.04, base_flare=0.025,
+                rim_band=0.012, lid_overhang=0.025, lid_thickness=0.025, lid_gap=0.004, handle_reach=0.19,
+                handle_low=0.2, handle_high=0.82, handle_radius=0.036, handle_squareness=3.0, thumb_angle_deg=35.0,
+                sections=96):
+    """A lidded tankard: a tapered body with a base moulding and rim band around an open cavity, a
+    flat stepped lid resting on the rim (``lid_gap`` above it), a hinge (block, knuckle and lid tab)
+    above the handle and a thumb-lift plate with a ball, and a thick D-shaped handle swept as a
+    tube along a superellipse (``handle_squareness`` 2 is a half ellipse, larger is squarer).
+    A revolved body like the dishes generator's, but the lid, hinge and thumb-lift are no part of
+    its family. Labels: 0 body (lid, hinge and thumb-lift included), 1 handle.
+    """
+    h, r0, r1 = height, radius_bottom, radius_top
+
+    def radius_at(y):
+        return r0 + (r1 - r0) * np.clip(y / h, 0.0, 1.0)
+
+    rb = r0 + base_flare
+    prof = [[0.0, 0.0], [rb, 0.0], [rb, 0.035], [radius_at(0.06), 0.06]]
+    prof += [[radius_at(y), y] for y in np.linspace(0.1, h - 0.04, 10)]
+    prof += [[radius_at(h - 0.04) + rim_band, h - 0.035], [r1 + rim_band, h], [r1 - wall, h]]
+    prof += [[radius_at(y) - wall, y] for y in np.linspace(h - 0.04, floor + 0.03, 10)]
+    prof += [[radius_at(floor) - wall - 0.015, floor], [0.0, floor]]
+    body = _revolved(prof, sections)
+
+    y_lid = h + lid_gap
+    r_lid = r1 + rim_band + lid_overhang
+    t = lid_thickness
+    lid = _revolved([[0.0, y_lid], [r_lid, y_lid], [r_lid, y_lid + t], [0.75 * r_lid, y_lid + t],
+                     [0.68 * r_lid, y_lid + 1.6 * t], [0.0, y_lid + 1.6 * t]], sections)
+    # hinge on the +x side, over the handle's upper end
+    x_k = r_lid + 0.035  # knuckle axis
+    r_k = 0.022
+    y_k = y_lid + 0.5 * t
+    tab = _box([r_lid - 0.06, y_lid, -0.045], [x_k, y_lid + t, 0.045])
+    knuckle = trimesh.creation.cylinder(radius=r_k, segment=[[x_k, y_k, -0.06], [x_k, y_k, 0.06]], sections=24)
+    block = _box([radius_at(h - 0.1) - 0.6 * wall, h - 0.1, -0.035], [x_k + 0.5 * r_k, y_k, 0.035])
+    # thumb-lift: a plate leaning outwards from the knuckle, a ball on its top
+    a = np.radians(thumb_angle_deg)
+    plate_len = 0.11
+    rot = trimesh.transformations.rotation_matrix(-a, [0, 0, 1])[:3, :3]  # lean towards +x
+    centre = np.array([x_k, y_k, 0.0]) + 0.5 * plate_len * np.array([np.sin(a), np.cos(a), 0.0])
+    plate = _box(centre - [0.009, 0.5 * plate_len, 0.03], centre + [0.009, 0.5 * plate_len, 0.03], rot)
+    ball = trimesh.creation.icosphere(2, 0.024).apply_translation(
+        [x_k + plate_len * np.sin(a), y_k + plate_len * np.cos(a), 0.0])
+
+    # handle: a tube along a superellipse from the upper to the lower attachment (both mid-wall)
+    y_hi, y_lo = handle_high * h, handle_low * h
+    p_hi = np.array([radius_at(y_hi) - 0.5 * wall, y_hi])
+    p_lo = np.array([radius_at(y_lo) - 0.5 * wall, y_lo])
+    s = np.linspace(0.0, np.pi, 41)
+    e = 2.0 / handle_squareness
+    c, sn = np.cos(s), np.sin(s)
+    w_lo = 0.5 * (1 - np.sign(c) * np.abs(c) ** e)  # 0 at the top, 1 at the bottom
+    out = np.abs(sn) ** e
+    xy = p_hi + w_lo[:, None] * (p_lo - p_hi) + (handle_reach + 0.5 * wall) * out[:, None] * [1.0, 0.0]
+    pts = np.stack([xy[:, 0], xy[:, 1], np.zeros(len(s))], 1)
+    rad = handle_radius * (1.0 - 0.2 * w_lo)  # thicker at the top, where the thumb rests
+    hv, hf = _closed_tubes([(pts, rad)], 20)
+    handle = trimesh.Trimesh(hv, hf, process=False)
+    return _assemble([body, lid, tab, knuckle, block, plate, ball, handle], [0, 0, 0, 0, 0, 0, 0, 1])
+
+
+@RECIPES.register("footed_goblet")
+def footed_goblet(foot_radius=0.2, foot_thickness=0.022, stem_radius=0.028, stem_height=0.3, knot_radius=0.05,
+                  knot_position=0.45, bowl_radius=0.26, bowl_height=0.42, rim_taper=0.12, wall=0.016, sections=96):
+    """A goblet: a flat round foot with a low dome into the stem, a thin stem with a knot at
+    ``knot_position`` of its height, and an open bowl (egg-shaped, drawn in by ``rim_taper`` at the
+    rim) with a cavity of ``wall`` thickness. One solid of revolution, no handle; a shape the
+    dishes generator's single-profile cups cannot take (a foot far narrower than the bowl on a
+    long stem). Label 0 (body).
+    """
+    ft, sr = foot_thickness, stem_radius
+    prof = [[0.0, 0.0], [foot_radius, 0.0], [foot_radius, 0.6 * ft], [foot_radius - 0.01, ft]]
+    prof += [[sr + (foot_radius - 0.02 - sr) * (1 - q) ** 2, ft + 0.05 * q ** 1.5] for q in np.linspace(0.1, 1, 8)]
+    y0 = ft + 0.05  # the stem proper starts here
+    stem_top = y0 + stem_height
+    for q in np.linspace(0.0, 1.0, 25)[1:]:
+        y = y0 + q * stem_height
+        bump = np.exp(-((q - knot_position) / 0.07) ** 2)
+        prof.append([sr * (1 - 0.15 * q) + (knot_radius - sr) * bump, y])
+    # the bowl: r(q) for q in [0, 1] from its bottom to the rim
+    base_y = stem_top
+    bowl = []
+    for q in np.linspace(0.0, 1.0, 28)[1:]:
+        r = bowl_radius * np.sin(0.5 * np.pi * min(q / 0.8, 1.0)) ** 0.7 * (1 - rim_taper * max(q - 0.6, 0) / 0.4)
+        bowl.append([max(r, sr), base_y + 0.02 + q * (bowl_height - 0.02)])
+    prof += bowl
+    rim_y = bowl[-1][1]
+    prof += [[bowl[-1][0] - wall, rim_y]]
+    inner_floor = base_y + 0.06
+    for q in np.linspace(1.0, 0.0, 28)[1:]:
+        r = bowl_radius * np.sin(0.5 * np.pi * min(q / 0.8, 1.0)) ** 0.7 * (1 - rim_taper * max(q - 0.6, 0) / 0.4)
+        y = base_y + 0.02 + q * (bowl_height - 0.02)
+        if y <= inner_floor + 0.005:
+            break
+        prof.append([r - wall, y])
+    prof += [[0.0, inner_floor]]
+    body = _revolved(prof, sections)
+    return _assemble([body], [0])
+
+
+def _needles(sites: np.ndarray, tangents: np.ndarray, per_site: int, length: float, width: float,
+             spread_deg: tuple[float, float], rng):
+    """Closed needle-cluster lenses radiating from points on a twig, leaning forward along it."""
+    base = np.repeat(sites, per_site, 0)
+    tan = np.repeat(tangents, per_site, 0)
+    side = _perpendicular(tan, rng)
+    a = np.radians(rng.uniform(*spread_deg, (len(base), 1)))
+    along = np.cos(a) * tan + np.sin(a) * side
+    normal = _perpendicular(along, rng)
+    across = np.cross(normal, along)
+    size = rng.uniform(0.75, 1.25, (len(base), 1))
+    return _leaf_lenses(base, along * length * size, across * width * size, normal, 0.12 * width)
+
+
+@RECIPES.register("conifer_tree")
+def conifer_tree(height=1.75, trunk_radius=0.035, crown_base=0.25, n_whorls=15, branches_per_whorl=6,
+                 branch_length=0.6, length_exponent=1.1, droop_deg=20.0, tip_curl=0.3, branchlets_per_side=5,
+                 branchlet_length=0.35, needle_spacing=0.028, needles_per_site=5, needle_length=0.055,
+                 needle_width=0.012, sides=6, seed=0):
+    """A spruce-like conifer: a straight trunk tapering to a leader at ``height``, ``n_whorls``
+    whorls of ``branches_per_whorl`` branches from ``crown_base`` up, each whorl turned by the
+    golden angle; branch length falls from ``branch_length`` at the bottom towards the top as
+    ``((height - y) / (height - crown_base)) ** length_exponent`` (a conical crown). Branches leave
+    the trunk ``droop_deg`` below horizontal and turn their tips up (``tip_curl``); alternate
+    branchlets leave them on both sides; needle clusters (closed lenses) sit every
+    ``needle_spacing`` along branchlets, the outer branches and the leader. Monopodial and
+    whorled, unlike the trees generator's Weber-Penn recursion. Labels: 0 branch, 1 foliage.
+    """
+    rng = np.random.default_rng(seed)
+    up = np.array([0.0, 1.0, 0.0])
+    ys = np.linspace(0.0, height, 16)
+    trunk = np.stack([np.zeros_like(ys), ys, np.zeros_like(ys)], 1)
+    chains = [(trunk, trunk_radius * (1.0 - ys / height) ** 0.9 + 0.0015)]
+    sites, tangents = [], []
+    p, t = _along(trunk, needle_spacing, 0.88)  # the leader carries needles too
+    sites.append(p)
+    tangents.append(t)
+    golden = np.pi * (3.0 - np.sqrt(5.0))
+    whorl_y = crown_base + (height - 0.12 - crown_base) * np.linspace(0.0, 1.0, n_whorls)
+    whorl_y[1:-1] += rng.uniform(-0.25, 0.25, n_whorls - 2) * (whorl_y[1] - whorl_y[0])
+    s = np.linspace(0.0, 1.0, 8)
+    for i, y0 in enumerate(whorl_y):
+        rel = (height - y0) / (height - crown_base)
+        n_b = max(3, int(round(branches_per_whorl * (0.6 + 0.4 * rel))))
+        phase = i * golden + rng.uniform(0, 2 * np.pi / n_b)
+        for k in range(n_b):
+            phi = phase + 2 * np.pi * k / n_b + rng.normal(0.0, 0.12)
+            length = max(0.04, branch_length * rel ** length_exponent * rng.uniform(0.85, 1.1))
+            droop = np.radians(droop_deg * (0.3 + 0.7 * rel) + rng.normal(0.0, 3.0))
+            out = np.array([np.cos(phi), 0.0, np.sin(phi)])
+            lateral = np.cross(up, out)
+            wander = rng.normal(0.0, 0.04) * np.sin(np.pi * s)
+            pts = (np.array([0.0, y0, 0.0]) + length * s[:, None] * out + length * wander[:, None] * lateral
+                   + length * (-np.tan(droop) * s + tip_curl * s ** 3)[:, None] * up)
+            r_b = 0.45 * trunk_radius * (length / branch_length) ** 0.6 + 0.002
+            chains.append((pts, r_b * (1.0 - 0.8 * s)))
+            p, t = _along(pts, needle_spacing, 0.3)
+            sites.append(p)
+            tangents.append(t)
+            # alternate branchlets on both sides, shorter towards the tip
+            n_l = max(1, int(round(2 * branchlets_per_side * min(1.0, length / (0.6 * branch_length)))))
+            for j, q in enumerate(np.linspace(0.15, 0.9, n_l)):
+                side = 1.0 if j % 2 == 0 else -1.0
+                jj = min(int(q * 7), 6)
+                base = pts[jj] + (q * 7 - jj) * (pts[jj + 1] - pts[jj])
+                tb = _unit(pts[jj + 1] - pts[jj])
+                h = _unit(np.cross(up, tb)) * side
+                d = _unit(np.cos(np.radians(50)) * tb + np.sin(np.radians(50)) * h - 0.15 * up)
+                ll = branchlet_length * length * (1.0 - q) ** 0.6 * rng.uniform(0.8, 1.2)
+                if ll < 0.02:
+                    continue
+                q3 = np.linspace(0.0, 1.0, 4)[:, None]
+                bl = base + ll * q3 * d - 0.12 * ll * q3 ** 2 * up
+                chains.append((bl, np.array([0.004, 0.0032, 0.0024, 0.0016]) * (0.6 + 0.4 * rel)))
+                p, t = _along(bl, needle_spacing)
+                sites.append(p)
+                tangents.append(t)
+    tv, tf = _closed_tubes(chains, sides)
+    lv, lf = _needles(np.concatenate(sites), np.concatenate(tangents), needles_per_site, needle_length,
+                      needle_width, (30.0, 80.0), rng)
+    v = np.concatenate([tv, lv])
+    f = np.concatenate([tf, lf + len(tv)])
+    labels = np.concatenate([np.zeros(len(tf), int), np.ones(len(lf), int)])
+    v[:, 1] -= v[:, 1].min()
+    return v, f, labels, _cylindrical_uv(v)
+
+
+conifer_tree.semantic = True
+
+
+@RECIPES.register("broad_bush")
+def broad_bush(height=1.25, n_stems=7, stem_lean_deg=(15.0, 50.0), stem_length=0.42, fork_levels=4,
+               fork_angle_deg=32.0, third_child=0.3, length_ratio=0.74, stem_radius=0.02, radius_ratio=0.68,
+               up_tropism=0.2, spread=0.15, base_radius=0.08, twiglets_per_twig=6, twiglet_length=0.09,
+               leaves_per_twiglet=8, leaf_length=0.07, leaf_width=0.04, sides=6, seed=0):
+    """A broad multi-stemmed bush: ``n_stems`` stems rise from a root crown of ``base_radius``, lean
+    outwards by ``stem_lean_deg`` (spread evenly round the crown) and fork ``fork_levels`` times (two children,
+    a third with probability ``third_child``, each ``fork_angle_deg`` off the parent, pushed away
+    from the axis by ``spread`` so the crown spreads into a dome wider than tall); every segment
+    is a gently bent tube leaving its parent along the parent's tangent. The end twigs (and,
+    half as many, the twigs before them) carry short twiglets and each twiglet a cluster of
+    closed leaf lenses. Scaled to ``height``. No trunk, unlike the trees generator's trees.
+    Labels: 0 branch, 1 foliage.
+    """
+    rng = np.random.default_rng(seed)
+    up = np.array([0.0, 1.0, 0.0])
+    chains, twigs = [], []
+    q = np.linspace(0.0, 1.0, 6)[:, None]
+
+    def grow(p0, t_in, d, length, radius, level):
+        d = _unit(d + up_tropism * up)
+        p2 = p0 + length * d
+        p1 = p0 + 0.4 * length * t_in
+        pts = (1 - q) ** 2 * p0 + 2 * q * (1 - q) * p1 + q ** 2 * p2  # quadratic Bezier, leaves along t_in
+        pts += rng.normal(0.0, 0.02 * length, pts.shape) * np.sin(np.pi * q)
+        chains.append((pts, radius * (1.0 - 0.3 * q[:, 0])))
+        if level >= fork_levels - 1:
+            twigs.append((pts, twiglets_per_twig if level == fork_levels else twiglets_per_twig // 2))
+        if level == fork_levels:
+            return
+        t_out = _unit(pts[-1] - pts[-2])
+        n_c = 3 if rng.random() < third_child else 2
+        roll = rng.uniform(0, 2 * np.pi)
+        outward = np.array([pts[-1, 0], 0.0, pts[-1, 2]])
+        outward = outward / max(np.linalg.norm(outward), 1e-6)
+        perp = _unit(np.cross(t_out, up) if abs(t_out[1]) < 0.99 else np.array([1.0, 0.0, 0.0]))
+        for c in range(n_c):
+            axis = _rotate(perp, t_out, roll + 2 * np.pi * c / n_c)
+            ang = np.radians(fork_angle_deg * rng.uniform(0.7, 1.3))
+            dc = _unit(_rotate(t_out, axis, ang) + spread * outward)
+            grow(pts[-1], t_out, dc, length * length_ratio * rng.uniform(0.85, 1.15), radius * radius_ratio,
+                 level + 1)
+
+    phase = rng.uniform(0, 2 * np.pi)
+    for k in range(n_stems):
+        phi = phase + 2 * np.pi * k / n_stems + rng.normal(0.0, 0.2)
+        out = np.array([np.cos(phi), 0.0, np.sin(phi)])
+        lean = np.radians(rng.uniform(*stem_lean_deg))
+        p0 = base_radius * rng.uniform(0.3, 1.0) * out
+        grow(p0, up, np.cos(lean) * up + np.sin(lean) * out, stem_length * rng.uniform(0.8, 1.2),
+             stem_radius * rng.uniform(0.8, 1.1), 0)
+    # twiglets off the last half of every end twig, leaves clustered along each twiglet
+    twiglets = []
+    for pts, n_t in twigs:
+        for _ in range(n_t):
+            w = rng.uniform(0.4, 1.0)
+            i = min(int(w * 5), 4)
+            base = pts[i] + (w * 5 - i) * (pts[i + 1] - pts[i])
+            t = _unit(pts[i + 1] - pts[i])
+            d = _unit(t + 1.2 * _perpendicular(t[None], rng)[0] + 0.3 * up)
+            tl = np.stack([base, base + 0.5 * twiglet_length * d, base + twiglet_length * d])
+            chains.append((tl, np.array([0.0025, 0.002, 0.0015])))
+            twiglets.append(tl)
+    tv, tf = _closed_tubes(chains, sides)
+    n_l = len(twiglets) * leaves_per_twiglet
+    tw = np.repeat(np.array(twiglets), leaves_per_twiglet, 0)
+    w = rng.uniform(0.2, 1.0, (n_l, 1))
+    base = tw[:, 0] + w * (tw[:, 2] - tw[:, 0])
+    tdir = _unit(tw[:, 2] - tw[:, 0])
+    along = _unit(tdir + 0.9 * _perpendicular(tdir, rng))
+    normal = _unit(up + rng.normal(0.0, 0.5, (n_l, 3)))
+    normal = _unit(normal - np.sum(normal * along, 1, keepdims=True) * along)
+    across = np.cross(normal, along)
+    size = rng.uniform(0.8, 1.2, (n_l, 1))
+    lv, lf = _leaf_lenses(base, along * leaf_length * size, across * leaf_width * size, normal, 0.05 * leaf_width)
+    v = np.concatenate([tv, lv])
+    f = np.concatenate([tf, lf + len(tv)])
+    labels = np.concatenate([np.zeros(len(tf), int), np.ones(len(lf), int)])
+    v[:, 1] -= v[:, 1].min()
+    v *= height / v[:, 1].max()
+    return v, f, labels, _cylindrical_uv(v)
+
+
+broad_bush.semantic = True

@@ -1,0 +1,124 @@
+"""The benchmark's case splits, and the seeded sampler of the test split's in-family cases.
+
+Every case file (``datasets_synthetic/NAME.json``) says its split:
+
+- ``dev``: cases on which defaults, priors and budgets may be tuned;
+- ``test``: cases scored, never looked at while choosing a setting: in-family objects drawn by
+  :func:`sample_case` from a generator's parameter space (``Generator.sample``, not from presets),
+  each at least :data:`MIN_PRESET_DISTANCE` from every preset, at random poses and camera
+  elevations; and out-of-family objects built by independent code (``datasets_synthetic.recipes``).
+
+``python -m ipm.cases`` writes the sampled case files from :data:`SAMPLED` (they are committed;
+a test checks that the sampler still draws them).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ipm.errors import UserError
+from ipm.generators import get_generator
+
+SPLITS = ("dev", "test")
+MIN_PRESET_DISTANCE = 0.3
+"""Least unit-cube distance (largest coordinate, :func:`unit_distance`) from a sampled case to
+every preset of its generator."""
+MAX_TRIANGLES = 300_000
+"""Sampled objects with more triangles at the reference's level of detail are drawn again (the
+metric ray-casts every reference 64 times and voxelises it)."""
+ELEVATION_RANGE = (10.0, 35.0)
+"""Camera elevation of a sampled case's input view (degrees)."""
+SAMPLED = (
+    ("cup_t1", "dishes", 1001, {"handle": True}),
+    ("cup_t2", "dishes", 1002, {"handle": False}),
+    ("cup_t3", "dishes", 1003, {"handle": True}),
+    ("cup_t4", "dishes", 1004, {"handle": False}),
+    ("tree_t1", "trees", 2001, {}),
+    ("tree_t2", "trees", 2002, {}),
+    ("tree_t3", "trees", 2003, {}),
+    ("tree_t4", "trees", 2004, {}),
+)
+"""The test split's in-family cases: (name, generator, sampler seed, sampler options). The cups
+alternate with and without a handle, so both topologies are scored."""
+
+
+def unit_distance(generator, x: np.ndarray, y: np.ndarray) -> float:
+    """Largest difference of two parameter vectors in the unit cube, over the parameters that
+    shape either object (``Generator.active``), without ``Generator.distance_ignores``."""
+    spec = generator.spec
+    on = generator.active(x) | generator.active(y)
+    for name in generator.distance_ignores:
+        on[spec.index[name]] = False
+    d = np.abs(spec.to_unit(spec.clip(x)) - spec.to_unit(spec.clip(y)))
+    return float(d[on].max()) if on.any() else 0.0
+
+
+def preset_distances(generator, x: np.ndarray) -> dict[str, float]:
+    """:func:`unit_distance` from ``x`` to each preset of ``generator``."""
+    return {name: round(unit_distance(generator, x, p), 4) for name, p in sorted(generator.presets.items())}
+
+
+def sample_case(name: str, generator: str, seed: int, **options) -> dict:
+    """A test-split case drawn from ``generator``'s family with ``seed``: parameters from
+    ``Generator.sample(rng, **options)``, drawn again while nearer than
+    :data:`MIN_PRESET_DISTANCE` to a preset or larger than :data:`MAX_TRIANGLES`; then a pose
+    (yaw 0-360 degrees, offsets up to 0.1, scale 0.85-1.15) and an input camera (any azimuth,
+    elevation in :data:`ELEVATION_RANGE`)."""
+    gen = get_generator(generator)
+    rng = np.random.default_rng(seed)
+    for draw in range(1, 1001):
+        x = gen.sample(rng, **options)
+        dist = preset_distances(gen, x)
+        if min(dist.values()) >= MIN_PRESET_DISTANCE and len(gen.mesh(x, 2).faces) <= MAX_TRIANGLES:
+            break
+    else:
+        raise RuntimeError(f"{name}: no usable draw in 1000")
+    nearest = min(dist, key=dist.get)
+    case = {
+        "name": name,
+        "split": "test",
+        "description": f"A {generator}-family object drawn by the seeded sampler (ipm.cases, seed {seed}), "
+                       f"not from a preset: unit-cube distance {dist[nearest]:.2f} to the nearest preset "
+                       f"({nearest}).",
+        "generator": generator,
+        "source": {"generator": generator, "params": gen.spec.as_dict(x)},
+        "sampler": {"seed": seed, "options": options, "draws": draw, "preset_distance": dist,
+                    "nearest_preset": nearest, "min_preset_distance": dist[nearest]},
+        "pose": {"yaw_deg": round(float(rng.uniform(0.0, 360.0)), 2),
+                 "translation": [round(float(rng.uniform(-0.1, 0.1)), 4), 0.0, round(float(rng.uniform(-0.1, 0.1)), 4)],
+                 "scale": round(float(rng.uniform(0.85, 1.15)), 4)},
+        "camera": {"azimuth_deg": round(float(rng.uniform(-180.0, 180.0)), 2),
+                   "elevation_deg": round(float(rng.uniform(*ELEVATION_RANGE)), 2)},
+    }
+    if generator == "dishes":
+        case["texture_seed"] = int(rng.integers(100, 1000))
+    return case
+
+
+def case_split(case: dict) -> str:
+    """The split of a case definition (``UserError`` if missing or unknown)."""
+    split = case.get("split")
+    if split not in SPLITS:
+        raise UserError(f"case {case.get('name')!r}: split must be one of {', '.join(SPLITS)}, got {split!r}")
+    return split
+
+
+def write_sampled_cases(folder: str | Path) -> list[Path]:
+    """Write the :data:`SAMPLED` cases as ``folder/NAME.json``."""
+    from ipm.io import write_json
+
+    out = []
+    for name, generator, seed, options in SAMPLED:
+        path = Path(folder) / f"{name}.json"
+        write_json(path, sample_case(name, generator, seed, **options))
+        out.append(path)
+    return out
+
+
+if __name__ == "__main__":  # python -m ipm.cases [FOLDER]: (re)write the sampled case files
+    folder = sys.argv[1] if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "datasets_synthetic"
+    for p in write_sampled_cases(folder):
+        print(p, json.loads(p.read_text())["sampler"]["min_preset_distance"])

@@ -1,0 +1,105 @@
+"""The benchmark protocol's cases: splits, the seeded sampler of in-family test cases, parameter recovery."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ipm.cases import ELEVATION_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split, preset_distances, sample_case
+from ipm.cases import unit_distance
+from ipm.errors import UserError
+from ipm.generators import GENERATORS, get_generator
+from ipm.metrics.recovery import parameter_recovery, true_parameters
+from ipm.synth import list_cases, load_case
+
+
+def test_every_case_says_its_split_and_the_test_split_is_complete():
+    cases = {name: load_case(name) for name in list_cases()}
+    splits = {name: case_split(c) for name, c in cases.items()}
+    assert {"cup_1", "cup_2", "cup_ext", "tree_1", "tree_2", "tree_ext"} <= {n for n, s in splits.items() if s == "dev"}
+    test = [c for n, c in cases.items() if splits[n] == "test"]
+    for gen in ("dishes", "trees"):  # at least 4 sampled and 2 independently built cases per class
+        assert sum(c["generator"] == gen and "sampler" in c for c in test) >= 4
+        assert sum(c["generator"] == gen and "recipe" in c["source"] for c in test) >= 2
+    for c in test:
+        assert ELEVATION_RANGE[0] <= c["camera"]["elevation_deg"] <= ELEVATION_RANGE[1]
+    with pytest.raises(UserError, match="split must be one of dev, test"):
+        case_split({"name": "x", "split": "train"})
+
+
+@pytest.mark.parametrize("name,generator,seed,options", SAMPLED, ids=[s[0] for s in SAMPLED])
+def test_sampled_cases_are_what_the_seeded_sampler_draws(name, generator, seed, options):
+    on_disk = load_case(name)
+    assert on_disk == sample_case(name, generator, seed, **options)  # reproducible from the seed
+    gen = get_generator(generator)
+    x = gen.spec.from_dict(on_disk["source"]["params"])
+    distances = preset_distances(gen, x)
+    assert distances == on_disk["sampler"]["preset_distance"]
+    assert min(distances.values()) >= MIN_PRESET_DISTANCE and "preset" not in on_disk["source"]
+
+
+@pytest.mark.parametrize("name", GENERATORS.names())
+def test_samples_lie_in_bounds_and_generate_finite_meshes(name):
+    gen = get_generator(name)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        x = gen.sample(rng)
+        assert np.all(x >= gen.spec.lower) and np.all(x <= gen.spec.upper)
+        assert np.array_equal(x, gen.spec.clip(x))  # discrete entries are integers
+        m = gen.mesh(x, 0)
+        assert len(m.faces) > 0 and np.all(np.isfinite(m.vertices))
+
+
+def test_unit_distance_ignores_inert_parameters():
+    dishes, trees = get_generator("dishes"), get_generator("trees")
+    bowl = dishes.presets["bowl"].copy()
+    other = bowl.copy()
+    other[dishes.spec.index["handle_radius_3"]] = 0.5  # a handle parameter of a cup without a handle
+    assert unit_distance(dishes, bowl, other) == 0.0
+    other[dishes.spec.index["has_handle"]] = 1.0
+    assert unit_distance(dishes, bowl, other) == 1.0
+    oak = trees.presets["oak"].copy()
+    reseeded = oak.copy()
+    reseeded[trees.spec.index["seed"]] = 9999  # another random stream is not another kind of tree
+    assert unit_distance(trees, oak, reseeded) == 0.0
+    sampled = dishes.sample(np.random.default_rng(1), handle=False)
+    assert unit_distance(dishes, sampled, bowl) == unit_distance(dishes, bowl, sampled) > 0
+
+
+def _params(case: dict, **pose) -> dict:
+    """params.json of a perfect reconstruction of ``case`` (with ``pose`` overrides)."""
+    gen, x = true_parameters(case)
+    p = case["pose"]
+    out = {"generator": gen.name, "params": gen.spec.as_dict(x),
+           "pose": {"yaw": math.radians(p["yaw_deg"]), "translation": p["translation"], "scale": p["scale"]}}
+    out["pose"].update(pose)
+    return out
+
+
+def test_parameter_recovery_of_the_truth_is_exact_and_errors_are_measured():
+    case = load_case("cup_t1")
+    exact = parameter_recovery(case, _params(case), 1.0)
+    assert exact["param_err"] == 0.0 and exact["param_err_max"] == 0.0 and exact["discrete_match"] == 1.0
+    assert exact["yaw_err_deg"] == pytest.approx(0.0, abs=1e-9) and exact["trans_err_rel"] == 0.0
+    assert exact["scale_err_pct"] == pytest.approx(0.0, abs=1e-9)
+    yaw = math.radians(case["pose"]["yaw_deg"] + 350.0)  # 10 degrees the other way round
+    t = np.array(case["pose"]["translation"]) + [0.03, 0.0, -0.04]
+    off = parameter_recovery(case, _params(case, yaw=yaw, translation=t.tolist(), scale=1.1 * case["pose"]["scale"]), 0.5)
+    assert off["yaw_err_deg"] == pytest.approx(10.0) and off["trans_err_rel"] == pytest.approx(0.1)
+    assert off["scale_err_pct"] == pytest.approx(10.0)
+    p = _params(case)
+    p["params"]["y_scale"] = p["params"]["y_scale"] + 0.115  # a tenth of its range
+    p["params"]["has_handle"] = 0
+    worse = parameter_recovery(case, p, 1.0)
+    assert worse["discrete_match"] == 0.0 and worse["param_err_max"] == pytest.approx(0.1, abs=1e-9)
+    assert worse["param_err"] > 0.0
+
+
+def test_parameter_recovery_only_where_it_means_something():
+    bowl = load_case("cup_t2")  # no handle: turned, it looks the same
+    assert math.isnan(parameter_recovery(bowl, _params(bowl), 1.0)["yaw_err_deg"])
+    assert parameter_recovery(load_case("cup_goblet"), _params(load_case("cup_1")), 1.0) == {}  # out of family
+    assert parameter_recovery(load_case("cup_1"), None, 1.0) == {}  # a baseline has no parameters
+    tree = _params(load_case("tree_t1"))
+    assert parameter_recovery(load_case("cup_1"), tree, 1.0) == {}  # another generator

@@ -1,0 +1,47 @@
+"""Jobs use the cores they declare: a Snakemake rule with ``threads: 1`` must not keep two cores busy."""
+from __future__ import annotations
+
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+CPU_OVER_WALL = 1.15
+"""Most CPU time per second of wall time of a ``--threads 1`` job (issue: 1.7 for diffSDF before)."""
+
+
+def _cpu_and_wall(args: list[str]) -> tuple[float, float]:
+    """CPU seconds (user + system, the process and its children) and wall seconds of a command."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    res = subprocess.run(args, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2 CPUs to see a job take more than one")
+@pytest.mark.parametrize("command", [
+    ["reconstruct", "--generator", "dishes", "--profile", "smoke"],  # Mitsuba (Dr.Jit) and a JAX generator
+    ["baseline", "diffsdf", "--profile", "default", "--n-input-views", "2"],  # JAX (XLA) heavy
+], ids=["diff", "diffsdf"])
+def test_a_one_thread_job_keeps_one_core_busy(command, tiny_case, tmp_path):
+    ipm = [sys.executable, "-m", "ipm.cli"]
+    cpu, wall = _cpu_and_wall([*ipm, *command, "--views", str(Path(tiny_case) / "transforms.json"),
+                               "--out", str(tmp_path / "out"), "--threads", "1", "--quiet"])
+    assert cpu <= CPU_OVER_WALL * wall, f"{cpu:.1f} s CPU in {wall:.1f} s wall"
+
+
+def test_thread_count_follows_the_configured_threads(monkeypatch):
+    import ipm.runtime as rt
+
+    monkeypatch.setattr(rt, "_THREADS", 1)
+    assert rt.thread_count() == 1
+    monkeypatch.setattr(rt, "_THREADS", None)
+    assert rt.thread_count() == len(os.sched_getaffinity(0))
