@@ -35,8 +35,7 @@ def footed_cup(radius_bottom, radius_top, height, wall, foot_radius, foot_height
     prof += [[r0 - wall + (r1 - r0) * s ** 1.5, foot_height + 0.04 + (h - foot_height - 0.04) * s]
              for s in np.linspace(0.95, 0.0, 12)]
     prof += [[0.0, foot_height + 0.04]]
-    body = trimesh.creation.revolve(np.array(prof)[::-1], sections=sections)
-    body.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))
+    body = _revolved(prof, sections)
 
     def radius_at(y):
         s = np.clip((y - foot_height - 0.01) / (h - foot_height - 0.01), 0, 1)
@@ -52,11 +51,7 @@ def footed_cup(radius_bottom, radius_top, height, wall, foot_radius, foot_height
                                                sections=24))
     for corner in ((x_out, y_lo), (x_out, y_hi)):
         parts.append(trimesh.creation.icosphere(2, handle_radius).apply_translation([corner[0], corner[1], 0]))
-    for p in parts:
-        trimesh.repair.fix_normals(p)  # outward winding: Mitsuba's area emitters are one-sided
-    labels = np.concatenate([np.full(len(p.faces), 0 if i == 0 else 1) for i, p in enumerate(parts)])
-    mesh = trimesh.util.concatenate(parts)
-    return mesh.vertices, mesh.faces, labels, _cylindrical_uv(mesh.vertices)
+    return _assemble(parts, [0] + [1] * (len(parts) - 1))
 
 
 def _closed_tubes(chains: list[tuple[np.ndarray, np.ndarray]], sides: int):

@@ -125,10 +125,11 @@ def _cell(mean: float, std: float, worst: float, n_failed: int = 0, n: int = 1) 
     return text
 
 
-def markdown(summary: pd.DataFrame, metric: str = "iou_mean") -> str:
-    """Markdown tables of ``metric`` (rows x cases and aggregates), one per class and split, test
-    split first: cells are mean ± standard deviation over seeds (worst seed); aggregates are means
-    over the cases, ± the standard deviation over seeds of that mean (worst case)."""
+def table_blocks(summary: pd.DataFrame, metric: str = "iou_mean") -> list[tuple[str, list[str], list[list[str]]]]:
+    """Tables of ``metric`` as (title, header, rows of cells), one per class and split, test split
+    first: rows x cases and aggregates; cells are mean ± standard deviation over seeds (worst
+    seed); aggregates are means over the cases, ± the standard deviation over seeds of that mean
+    (worst case)."""
     out = []
     for split in ("test", "dev"):
         for gen in summary["generator"].dropna().unique():
@@ -136,23 +137,28 @@ def markdown(summary: pd.DataFrame, metric: str = "iou_mean") -> str:
             if part.empty:
                 continue
             cols = list(dict.fromkeys(part["case"]))
-            title = f"{CLASS_NAMES.get(gen, gen)}, {split} split"
-            out += [f"**{title}** ({metric})", "", "| row | " + " | ".join(cols) + " |",
-                    "|---" * (len(cols) + 1) + "|"]
+            rows = []
             for label, g in part.groupby("label", sort=False):
                 by_case = {r.case: r for r in g.itertuples()}
-                cells = []
+                cells = [label]
                 for c in cols:
                     r = by_case.get(c)
-                    if r is None:
-                        cells.append("")
-                        continue
-                    n = r.n_cases if isinstance(r.case, str) and "/" in r.case else r.n_seeds
-                    cells.append(_cell(getattr(r, metric), getattr(r, f"{metric}_std", np.nan),
-                                       getattr(r, f"{metric}_worst", np.nan), int(r.n_failed), int(n)))
-                out.append(f"| {label} | " + " | ".join(cells) + " |")
-            out.append("")
-    return "\n".join(out)
+                    n = 0 if r is None else (r.n_cases if "/" in r.case else r.n_seeds)
+                    cells.append("" if r is None else _cell(getattr(r, metric), getattr(r, f"{metric}_std", np.nan),
+                                                            getattr(r, f"{metric}_worst", np.nan), int(r.n_failed),
+                                                            int(n)))
+                rows.append(cells)
+            out.append((f"{CLASS_NAMES.get(gen, gen)}, {split} split ({metric})", ["row", *cols], rows))
+    return out
+
+
+def markdown(summary: pd.DataFrame, metric: str = "iou_mean") -> str:
+    """:func:`table_blocks` as Markdown."""
+    lines = []
+    for title, header, rows in table_blocks(summary, metric):
+        lines += [f"**{title}**", "", "| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+        lines += ["| " + " | ".join(r) + " |" for r in rows] + [""]
+    return "\n".join(lines)
 
 
 def build_table(metrics: list[str], table_csv: str, wide_csv: str, summary_csv: str | None = None,

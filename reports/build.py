@@ -62,22 +62,14 @@ def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
 
 def _summary_html(summary: pd.DataFrame, split: str, metric: str) -> str:
     """Per class: rows x (cases, aggregates) of ``metric`` as mean ± std (worst) over seeds."""
-    from ipm.table import markdown
+    from ipm.table import table_blocks
 
-    part = summary[summary["split"] == split]
-    if part.empty:
+    blocks = table_blocks(summary[summary["split"] == split], metric)
+    if not blocks:
         return "<p class='note'>(no cases in this split)</p>"
-    md = markdown(part, metric)
-    out = []
-    for block in md.strip().split("\n\n"):
-        lines = [ln for ln in block.splitlines() if ln.strip()]
-        title, head, rows = lines[0].strip("*"), lines[2], lines[4:]
-        cells = lambda ln: [c.strip() for c in ln.strip().strip("|").split("|")]  # noqa: E731
-        out.append(f"<h3>{html.escape(title.split('**')[0])}</h3><table><tr>"
-                   + "".join(f"<th>{html.escape(c)}</th>" for c in cells(head)) + "</tr>"
-                   + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells(r)) + "</tr>" for r in rows)
-                   + "</table>")
-    return "\n".join(out)
+    return "\n".join(f"<h3>{html.escape(title)}</h3><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in head)
+                     + "</tr>" + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+                     + "</table>" for title, head, rows in blocks)
 
 
 def _aggregate_bars(summary: pd.DataFrame):

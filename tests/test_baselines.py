@@ -14,7 +14,7 @@ from baselines.common import extract_surface, grid_points, input_views, object_b
 from ipm.errors import UserError
 from ipm.io import load_mesh
 from ipm.methods import METHODS, row_label
-from ipm.synth import LAYOUTS, ground_truth_mesh, load_case
+from ipm.synth import LAYOUTS
 
 
 @pytest.fixture(scope="module")
@@ -93,21 +93,22 @@ def test_failure_record_flows_into_the_table(tmp_path):
     from ipm.table import build_table
     from ipm.workflow import evaluate_step
 
+    from ipm.synth import write_reference
+
     ref_dir = tmp_path / "ref"
-    ref_dir.mkdir()
-    v, f, labels, _ = ground_truth_mesh(load_case("cup_1"))
-    trimesh.Trimesh(v, f).export(ref_dir / "reference.ply")
+    write_reference("cup_1", ref_dir)
     write_failure(tmp_path / "rec", 0.0, {"method": "colmap_sfm"}, "registered 1 of 16 images")
     assert len(load_mesh(tmp_path / "rec" / "mesh.ply", allow_empty=True).faces) == 0
-    out = tmp_path / "results" / "evaluate" / "colmap_sfm_16v" / "cup_1"
+    out = tmp_path / "results" / "evaluate" / "colmap_sfm_16v" / "cup_1" / "s0"
     out.mkdir(parents=True)
-    evaluate_step(str(ref_dir / "reference.ply"), str(tmp_path / "rec" / "mesh.ply"),
+    evaluate_step(str(ref_dir / "reference.ply"), str(ref_dir / "ground_truth.json"), str(tmp_path / "rec" / "mesh.ply"),
                   str(tmp_path / "rec" / "timing.json"), str(out / "metrics.json"), str(out / "preview.png"),
-                  {"label": "COLMAP SfM (16 views)", "kind": "baseline"}, n_views=8, res=32, grid=16)
+                  {"label": "COLMAP SfM (16 views)", "kind": "baseline"}, seed=0, n_views=8, res=32, grid=16)
     assert json.loads((out / "metrics.json").read_text()) == {"failed": "registered 1 of 16 images"}
     assert (out / "preview.png").is_file()
     df = build_table([str(out / "metrics.json")], str(tmp_path / "t.csv"), str(tmp_path / "w.csv"))
     assert np.isnan(df["iou_mean"].iloc[0]) and df["note"].iloc[0] == "failed: registered 1 of 16 images"
+    assert df["split"].iloc[0] == "dev" and df["seed"].iloc[0] == 0
     assert "COLMAP SfM (16 views)" in (tmp_path / "w.csv").read_text()
 
 

@@ -22,8 +22,8 @@ from scipy.optimize import minimize
 
 from ipm.runtime import thread_count
 
-from .silhouette import (FOV_DEG, bounding_sphere, check_reference, fibonacci_cameras, finite_part, open3d,
-                         raycast_masks, raycasting_scene)
+from .silhouette import (FOV_DEG, bounding_sphere, camera_rays, check_reference, fibonacci_cameras, finite_part,
+                         open3d, raycast_masks, raycasting_scene)
 
 SCALE_RANGE = 2.0  # the scale is searched within [min(1, s0) / 2, 2 max(1, s0)], s0 the bounding-box match
 SHIFT_LIMIT = 2.0  # |t| is kept within 2 reference radii (the cameras see about 2.9 r across)
@@ -49,21 +49,6 @@ def base_centre(mesh: trimesh.Trimesh) -> np.ndarray:
     return np.array([(lo[0] + hi[0]) / 2.0, lo[1], (lo[2] + hi[2]) / 2.0])
 
 
-def _pixel_rays(cams, res: int, fov_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """Camera origins (n, 3) and float32 pixel-centre directions (n, res*res, 3).
-
-    Built exactly as :func:`ipm.metrics.silhouette.raycast_masks` builds its rays, so the
-    identity transform reproduces the metric's masks bit for bit.
-    """
-    t = np.tan(np.radians(fov_deg) / 2.0)
-    s = ((np.arange(res) + 0.5) / res * 2.0 - 1.0) * t
-    u, v = np.meshgrid(s, -s)
-    pix = np.stack([u, v, -np.ones_like(u)], axis=-1).reshape(-1, 3)
-    c2w = np.asarray(cams, dtype=float)
-    dirs = np.einsum("nij,pj->npi", c2w[:, :3, :3], pix).astype(np.float32)
-    return c2w[:, :3, 3].copy(), dirs
-
-
 class _MovedMeshMasks:
     """Masks of one reconstruction under any similarity transform, from one ray casting scene.
 
@@ -74,7 +59,7 @@ class _MovedMeshMasks:
 
     def __init__(self, mesh: trimesh.Trimesh, cams, res: int, pivot: np.ndarray, fov_deg: float = FOV_DEG):
         self.scene = raycasting_scene(mesh)
-        self.origins, self.dirs = _pixel_rays(cams, res, fov_deg)
+        self.origins, self.dirs = camera_rays(cams, res, fov_deg)
         self.pivot = pivot
         self.shape = (len(self.origins), res, res)
         self.rays = np.empty(self.dirs.shape[:2] + (6,), dtype=np.float32)

@@ -53,7 +53,7 @@ def open3d():
 def raycasting_scene(mesh: trimesh.Trimesh) -> open3d.t.geometry.RaycastingScene:
     """Build an open3d ray casting scene holding the mesh triangles (an empty mesh gives an empty scene)."""
     o3d = open3d()
-    scene = o3d.t.geometry.RaycastingScene()
+    scene = o3d.t.geometry.RaycastingScene(nthreads=thread_count())
     scene.add_triangles(
         o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32).reshape(-1, 3)),
         o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32).reshape(-1, 3)),
@@ -88,21 +88,27 @@ def fibonacci_cameras(center: np.ndarray, radius: float, n_views: int = 64, fov_
     return cams
 
 
-def raycast_masks(mesh: trimesh.Trimesh, cams: list, res: int = 256, fov_deg: float = FOV_DEG) -> np.ndarray:
-    """Binary masks (n, res, res), row 0 at the top: a pixel is set if its centre ray hits any triangle.
-
-    All views go through one batched ``test_occlusions`` call (any-hit, cheaper than closest-hit).
-    """
+def camera_rays(cams: list, res: int = 256, fov_deg: float = FOV_DEG) -> tuple[np.ndarray, np.ndarray]:
+    """Camera origins (n, 3) and float32 pixel-centre directions (n, res * res, 3), row 0 at the top."""
     t = np.tan(np.radians(fov_deg) / 2.0)
     s = ((np.arange(res) + 0.5) / res * 2.0 - 1.0) * t
     u, v = np.meshgrid(s, -s)  # columns go right (+x), rows go down (-y)
     pix = np.stack([u, v, -np.ones_like(u)], axis=-1).reshape(-1, 3)
     c2w = np.asarray(cams, dtype=float)
-    rays = np.empty((len(c2w), res * res, 6), dtype=np.float32)
-    rays[..., :3] = c2w[:, None, :3, 3]
-    rays[..., 3:] = np.einsum("nij,pj->npi", c2w[:, :3, :3], pix)
+    return c2w[:, :3, 3].copy(), np.einsum("nij,pj->npi", c2w[:, :3, :3], pix).astype(np.float32)
+
+
+def raycast_masks(mesh: trimesh.Trimesh, cams: list, res: int = 256, fov_deg: float = FOV_DEG) -> np.ndarray:
+    """Binary masks (n, res, res), row 0 at the top: a pixel is set if its centre ray hits any triangle.
+
+    All views go through one batched ``test_occlusions`` call (any-hit, cheaper than closest-hit).
+    """
+    origins, dirs = camera_rays(cams, res, fov_deg)
+    rays = np.empty(dirs.shape[:2] + (6,), dtype=np.float32)
+    rays[..., :3] = origins[:, None, :]
+    rays[..., 3:] = dirs
     hit = raycasting_scene(mesh).test_occlusions(open3d().core.Tensor(rays), nthreads=thread_count()).numpy()
-    return hit.reshape(len(c2w), res, res)
+    return hit.reshape(len(origins), res, res)
 
 
 def silhouette_masks(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,

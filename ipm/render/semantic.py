@@ -152,7 +152,7 @@ class LabelCaster:
         self.n_parts, self.nthreads = n_parts, int(nthreads)
         self._lut = np.append(lab + 1, 0).astype(np.uint8)  # INVALID -> index len(f) -> background
         self._n_faces = len(f)
-        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
         if len(f):
             self._scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),
                                       o3d.core.Tensor(np.ascontiguousarray(f, np.uint32)))
