@@ -106,6 +106,28 @@ def case_split(case: dict) -> str:
     return split
 
 
+def describe_cases(split: str | None = None) -> str:
+    """One line per case (``ipm cases``): name, split, generator, family (in: made by the generator,
+    with its distance to the nearest preset; out: the recipe that built it) and input elevation."""
+    from ipm.synth import list_cases, load_case
+
+    lines = [f"{'case':14} {'split':5} {'generator':9} {'family':34} elevation"]
+    for name in list_cases():
+        case = load_case(name)
+        if split is not None and case_split(case) != split:
+            continue
+        src = case["source"]
+        if "recipe" in src:
+            family = f"out: {src['recipe']}"
+        elif "sampler" in case:
+            family = f"in: sampled, {case['sampler']['min_preset_distance']:.2f} from {case['sampler']['nearest_preset']}"
+        else:
+            family = f"in: preset {src.get('preset', 'defaults')}, edited"
+        lines.append(f"{name:14} {case_split(case):5} {case['generator']:9} {family:34} "
+                     f"{case.get('camera', {}).get('elevation_deg', 22.0):.0f} deg")
+    return "\n".join(lines)
+
+
 def write_sampled_cases(folder: str | Path) -> list[Path]:
     """Write the :data:`SAMPLED` cases as ``folder/NAME.json``."""
     from ipm.io import write_json

@@ -56,6 +56,9 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--grid", type=int, default=128, help="volumetric IoU grid size")
     e.add_argument("--preview", default=None, help="optional PNG strip of mask overlays")
 
+    c = sub.add_parser("cases", help="list the synthetic cases with their split, class and family")
+    c.add_argument("--split", default=None, choices=["dev", "test"], help="only this split")
+
     lr = sub.add_parser("reference-line", help="a table reference line from the reference mesh")
     lr.add_argument("name", help="convex_hull or bounding_sphere")
     lr.add_argument("--reference", required=True, help="reference mesh (PLY)")
@@ -64,7 +67,7 @@ def _parser() -> argparse.ArgumentParser:
     for sp in (r, pr, b):
         sp.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
         sp.add_argument("--seed", type=int, default=0, help="random seed")
-    for sp in (s, r, pr, b, e, lr):
+    for sp in (s, r, pr, b, e, lr, c):
         sp.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU threads")
         sp.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Mitsuba/JAX device")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -140,6 +143,10 @@ def _run(args) -> int:
         m = evaluate_files(args.reference, args.mesh, args.out, n_views=args.views, res=args.res,
                            grid=args.grid, preview_path=args.preview)
         print(f"{args.out}: IoU {m['iou_mean']:.4f} (min {m['iou_min']:.4f}), volumetric IoU {m['viou']:.4f}")
+    elif args.command == "cases":
+        from ipm.cases import describe_cases
+
+        print(describe_cases(args.split))
     elif args.command == "reference-line":
         from ipm.reference_lines import write_reference_line
 

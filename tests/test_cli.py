@@ -107,3 +107,13 @@ def test_prepare_writes_statistics_the_ga_reads(tmp_path):
     stats = GeneStatistics.load(out)
     assert stats.n_samples == 24 and stats.names[-1] == "pose_scale"
     assert [p.name for p in out.parent.iterdir()] == ["trees.json"]  # nothing half-written beside it
+
+
+def test_cases_lists_every_case_with_its_split():
+    res = ipm("cases", "--split", "test")
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.strip().splitlines()[1:]
+    assert all(" test " in ln for ln in lines) and any(ln.startswith("cup_goblet") for ln in lines)
+    assert any("sampled" in ln and ln.startswith("tree_t1") for ln in lines)
+    res = ipm("cases")
+    assert res.returncode == 0 and any(ln.startswith("cup_1 ") and " dev " in ln for ln in res.stdout.splitlines())

@@ -23,7 +23,7 @@ from scipy.optimize import minimize
 from ipm.runtime import thread_count
 
 from .silhouette import (FOV_DEG, bounding_sphere, camera_rays, check_reference, fibonacci_cameras, finite_part,
-                         open3d, raycast_masks, raycasting_scene)
+                         open3d, raycast_masks, raycasting_scene, view_ious)
 
 SCALE_RANGE = 2.0  # the scale is searched within [min(1, s0) / 2, 2 max(1, s0)], s0 the bounding-box match
 SHIFT_LIMIT = 2.0  # |t| is kept within 2 reference radii (the cameras see about 2.9 r across)
@@ -77,13 +77,6 @@ class _MovedMeshMasks:
             np.matmul(self.dirs, rot.astype(np.float32), out=self.rays[..., 3:])
         hit = self.scene.test_occlusions(open3d().core.Tensor(self.rays), nthreads=thread_count()).numpy()
         return hit.reshape(self.shape)
-
-
-def _view_ious(ref: np.ndarray, rec: np.ndarray) -> np.ndarray:
-    """Per-view mask IoU, 1 where both masks are empty (as in ``silhouette_iou``)."""
-    inter = (ref & rec).sum(axis=(1, 2))
-    union = (ref | rec).sum(axis=(1, 2))
-    return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
 
 
 def _box_match(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, pivot: np.ndarray) -> tuple[float, np.ndarray]:
@@ -156,7 +149,7 @@ def align_similarity(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views:
         p = clip(p)
         key = tuple(np.round(p, 12))
         if key not in cache:
-            cache[key] = float(_view_ious(ref, masks(p[0], p[1:4] * radius, math.exp(p[4]))).mean())
+            cache[key] = float(view_ious(ref, masks(p[0], p[1:4] * radius, math.exp(p[4]))).mean())
         return cache[key]
 
     identity = np.zeros(5)
@@ -206,7 +199,8 @@ def _result(yaw, translation, scale, pivot, search_iou, identity_iou, n_evals) -
 
 
 def shape_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,
-              fov_deg: float = FOV_DEG, search_views: int = 24, search_res: int = 64, **search) -> dict:
+              fov_deg: float = FOV_DEG, search_views: int = 24, search_res: int = 64, masks: tuple | None = None,
+              **search) -> dict:
     """The metric's 64-view silhouette IoU after :func:`align_similarity`, with the alignment used.
 
     The aligned and the unaligned mesh are both seen from the metric's cameras at full
@@ -214,7 +208,8 @@ def shape_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 
     IoU (it was chosen on coarser views), the unaligned result with the identity is returned,
     so ``shape_iou >= world_iou`` always. ``world_iou`` equals ``silhouette_iou``'s ``iou_mean``.
     ``search_views`` and ``search_res`` are :func:`align_similarity`'s ``n_views`` and ``res``;
-    its other options pass through ``search``.
+    its other options pass through ``search``. ``masks``: :func:`silhouette_masks`'s result for
+    the metric's arguments, if already cast (the reference's and the unaligned mesh's are reused).
 
     Returns
     -------
@@ -229,11 +224,16 @@ def shape_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 
     if len(fine.faces) == 0:
         return _shape_dict(0.0, 0.0, 0.0, _result(0.0, np.zeros(3), 1.0, np.zeros(3), 0.0, 0.0, 0), radius)
     align = align_similarity(reference, fine, search_views, search_res, fov_deg=fov_deg, **search)
-    cams = fibonacci_cameras(centre, radius, n_views, fov_deg)
-    ref = raycast_masks(reference, cams, res, fov_deg)
-    masks = _MovedMeshMasks(fine, cams, res, align["pivot"], fov_deg)
-    world = _view_ious(ref, masks(0.0, np.zeros(3), 1.0))
-    moved = _view_ious(ref, masks(align["yaw"], align["translation"], align["scale"]))
+    if masks is None:
+        cams = fibonacci_cameras(centre, radius, n_views, fov_deg)
+        ref = raycast_masks(reference, cams, res, fov_deg)
+        moved_masks = _MovedMeshMasks(fine, cams, res, align["pivot"], fov_deg)
+        world = view_ious(ref, moved_masks(0.0, np.zeros(3), 1.0))
+    else:
+        ref, rec, cams = masks
+        moved_masks = _MovedMeshMasks(fine, cams, res, align["pivot"], fov_deg)
+        world = view_ious(ref, rec)
+    moved = view_ious(ref, moved_masks(align["yaw"], align["translation"], align["scale"]))
     if moved.mean() < world.mean():
         align = _result(0.0, np.zeros(3), 1.0, align["pivot"], align["identity_iou"], align["identity_iou"],
                         align["n_evals"])

@@ -121,17 +121,23 @@ def silhouette_masks(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views:
             raycast_masks(finite_part(mesh), cams, res, fov_deg), cams)
 
 
+def view_ious(ref: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    """Per-view mask IoU of two mask stacks (n, H, W); 1 where both masks are empty."""
+    inter = (ref & rec).sum(axis=(1, 2))
+    union = (ref | rec).sum(axis=(1, 2))
+    return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
+
+
 def silhouette_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,
-                   fov_deg: float = FOV_DEG) -> dict:
+                   fov_deg: float = FOV_DEG, masks: tuple | None = None) -> dict:
     """Per-view mask IoU (1 when both masks are empty) and its mean, min, std and above/below-horizon means.
 
     A view is above the horizon if its camera is higher (y) than the reference centre;
-    a group without views (only possible for tiny n_views) gets NaN.
+    a group without views (only possible for tiny n_views) gets NaN. ``masks``: the result of
+    :func:`silhouette_masks` for these arguments, if already cast.
     """
-    ref, rec, cams = silhouette_masks(reference, mesh, n_views, res, fov_deg)
-    inter = (ref & rec).sum(axis=(1, 2))
-    union = (ref | rec).sum(axis=(1, 2))
-    iou = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
+    ref, rec, cams = masks if masks is not None else silhouette_masks(reference, mesh, n_views, res, fov_deg)
+    iou = view_ious(ref, rec)
     height = np.array([c[1, 3] for c in cams]) - bounding_sphere(reference)[0][1]
 
     def mean(sel):

@@ -109,11 +109,13 @@ def method_transforms(wildcards):
 def method_inputs(wildcards):
     """Inputs of a reconstruction: its views, and the method's preparation file for the case's
     generator and the run's seed if it has a preparation stage (the GA's gene statistics, made once
-    per generator and seed, so the spread over seeds includes theirs)."""
+    per generator and seed, so the spread over seeds includes theirs; with ``prepare_seed`` set, one
+    file made with that seed serves every seed)."""
     m = method_of(wildcards)
     out = {"transforms": method_transforms(wildcards)}
     if METHODS[m["name"]].prepare is not None:
-        out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}/s{wildcards.seed}.json"
+        seed = wildcards.seed if config["prepare_seed"] is None else config["prepare_seed"]
+        out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}/s{seed}.json"
     return out
 
 
