@@ -123,7 +123,7 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
     rec = summary[summary["param_err"].notna() & ~summary["case"].str.contains("/", na=False)]
     if not rec.empty:
         cols = ["label", "split", "case", "n_seeds", "param_err", "param_err_max", "discrete_match", "yaw_err_deg",
-                "trans_err_rel", "scale_err_pct"]
+                "trans_err_rel", "size_err_pct"]
         parts += ["<h2>Parameter recovery (in-family cases)</h2><p class='note'>means over seeds: unit-cube error of "
                   "the continuous parameters (mean, largest), share of discrete parameters recovered, yaw error "
                   "(degrees; - for objects that look the same turned), translation error / reference height, scale "

@@ -79,27 +79,27 @@ def _params(case: dict, **pose) -> dict:
 
 def test_parameter_recovery_of_the_truth_is_exact_and_errors_are_measured():
     case = load_case("cup_t1")
-    exact = parameter_recovery(case, _params(case), 1.0)
+    exact = parameter_recovery(case, _params(case), 1.0, 1.0)
     assert exact["param_err"] == 0.0 and exact["param_err_max"] == 0.0 and exact["discrete_match"] == 1.0
     assert exact["yaw_err_deg"] == pytest.approx(0.0, abs=1e-9) and exact["trans_err_rel"] == 0.0
-    assert exact["scale_err_pct"] == pytest.approx(0.0, abs=1e-9)
+    assert exact["size_err_pct"] == pytest.approx(0.0, abs=1e-9)
     yaw = math.radians(case["pose"]["yaw_deg"] + 350.0)  # 10 degrees the other way round
     t = np.array(case["pose"]["translation"]) + [0.03, 0.0, -0.04]
-    off = parameter_recovery(case, _params(case, yaw=yaw, translation=t.tolist(), scale=1.1 * case["pose"]["scale"]), 0.5)
+    off = parameter_recovery(case, _params(case, yaw=yaw, translation=t.tolist()), 0.5, 0.55)
     assert off["yaw_err_deg"] == pytest.approx(10.0) and off["trans_err_rel"] == pytest.approx(0.1)
-    assert off["scale_err_pct"] == pytest.approx(10.0)
+    assert off["size_err_pct"] == pytest.approx(10.0)
     p = _params(case)
     p["params"]["y_scale"] = p["params"]["y_scale"] + 0.115  # a tenth of its range
     p["params"]["has_handle"] = 0
-    worse = parameter_recovery(case, p, 1.0)
+    worse = parameter_recovery(case, p, 1.0, 1.0)
     assert worse["discrete_match"] == 0.0 and worse["param_err_max"] == pytest.approx(0.1, abs=1e-9)
     assert worse["param_err"] > 0.0
 
 
 def test_parameter_recovery_only_where_it_means_something():
     bowl = load_case("cup_t2")  # no handle: turned, it looks the same
-    assert math.isnan(parameter_recovery(bowl, _params(bowl), 1.0)["yaw_err_deg"])
-    assert parameter_recovery(load_case("cup_goblet"), _params(load_case("cup_1")), 1.0) == {}  # out of family
-    assert parameter_recovery(load_case("cup_1"), None, 1.0) == {}  # a baseline has no parameters
+    assert math.isnan(parameter_recovery(bowl, _params(bowl), 1.0, 1.0)["yaw_err_deg"])
+    assert parameter_recovery(load_case("cup_goblet"), _params(load_case("cup_1")), 1.0, 1.0) == {}  # out of family
+    assert parameter_recovery(load_case("cup_1"), None, 1.0, 1.0) == {}  # a baseline has no parameters
     tree = _params(load_case("tree_t1"))
-    assert parameter_recovery(load_case("cup_1"), tree, 1.0) == {}  # another generator
+    assert parameter_recovery(load_case("cup_1"), tree, 1.0, 1.0) == {}  # another generator

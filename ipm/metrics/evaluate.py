@@ -101,7 +101,8 @@ def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: 
     if truth is not None:
         from .recovery import parameter_recovery
 
-        metrics.update(parameter_recovery(truth, params, float(np.ptp(reference.vertices[:, 1]))))
+        heights = [float(np.ptp(m.vertices[:, 1])) if len(m.vertices) else 0.0 for m in (reference, finite_part(mesh))]
+        metrics.update(parameter_recovery(truth, params, *heights))
     write_json(out_path, metrics)
     if preview_path is not None:
         preview_png(reference, mesh, str(preview_path))

@@ -3,9 +3,11 @@
 Only for in-family cases (the ground truth made by the generator the method fitted, ``params.json``
 naming the same generator). Parameters are compared in the generator's unit cube over those that
 shape either object (``Generator.active``, without ``distance_ignores``); the pose by yaw,
-translation of the object's origin (its base) and scale. One view leaves the pose scale partly
-interchangeable with size parameters (a cup's profile radii and height), so the world-frame and
-shape IoUs stay the measures of the result; these numbers say which parameters came back.
+translation of the object's origin (its base) and size. The pose's scale trades against the
+generator's own size parameters (a cup's radii and height, a tree's ``height``; the GA path leaves
+the latter inert), so size is compared as the world height of the two meshes, not as the scale.
+The world-frame and shape IoUs stay the measures of the result; these numbers say which
+parameters came back.
 """
 from __future__ import annotations
 
@@ -13,13 +15,13 @@ import math
 
 import numpy as np
 
-from ipm.generators import get_generator
-
-RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "yaw_err_deg", "trans_err_rel", "scale_err_pct")
+RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "yaw_err_deg", "trans_err_rel", "size_err_pct")
 
 
 def true_parameters(case: dict):
     """``(generator, physical parameters)`` of an in-family case's ground truth, else ``None``."""
+    from ipm.generators import get_generator
+
     src = case["source"]
     if "generator" not in src:
         return None
@@ -28,12 +30,13 @@ def true_parameters(case: dict):
     return gen, gen.spec.clip(gen.spec.from_dict(src.get("params", {}), base))
 
 
-def parameter_recovery(case: dict, params: dict | None, reference_height: float) -> dict:
+def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float) -> dict:
     """Recovery numbers of ``params`` (a reconstruction's params.json) against ``case`` (its
     ground_truth.json): mean and largest unit-cube error of the continuous parameters, share of
     discrete parameters recovered exactly, yaw error in degrees (NaN for objects that look the
-    same turned, ``Generator.yaw_symmetric``), translation error over the reference's height, scale
-    error in percent. Empty for out-of-family cases, baselines and other generators."""
+    same turned, ``Generator.yaw_symmetric``), translation error over the reference's height, size
+    error in percent (the world heights of reconstruction and reference). Empty for out-of-family
+    cases, baselines and other generators."""
     truth = true_parameters(case)
     if truth is None or not params or params.get("generator") != truth[0].name:
         return {}
@@ -58,5 +61,5 @@ def parameter_recovery(case: dict, params: dict | None, reference_height: float)
         "discrete_match": float(np.mean(x_true[disc] == x_rec[disc])) if disc.any() else float("nan"),
         "yaw_err_deg": yaw_err,
         "trans_err_rel": float(np.linalg.norm(t_rec - t_true) / max(reference_height, 1e-9)),
-        "scale_err_pct": float(100.0 * (float(rec["scale"]) / float(pose.get("scale", 1.0)) - 1.0)),
+        "size_err_pct": float(100.0 * (mesh_height / max(reference_height, 1e-9) - 1.0)),
     }
