@@ -52,7 +52,9 @@ def thread_count() -> int:
     """CPU threads this process may use: the count given to :func:`configure_threads`, else every
     CPU it may run on. Libraries that take a thread count per call (open3d's ray casting, COLMAP)
     get it from here."""
-    return _THREADS or len(os.sched_getaffinity(0))
+    if _THREADS:
+        return _THREADS
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def _start_xla_cpu(threads: int) -> None:
@@ -63,8 +65,11 @@ def _start_xla_cpu(threads: int) -> None:
     diffSDF-style baseline kept 1.7 cores busy under ``--threads 1``. So the client is started
     with the calling thread pinned to ``threads`` CPUs (new threads inherit that mask), and then
     every thread of the process gets the whole mask back, so the scheduler can still move the
-    job to whichever core is free. Does nothing when ``threads`` covers every CPU.
+    job to whichever core is free. Does nothing when ``threads`` covers every CPU, or where the
+    system has no CPU affinity (not Linux).
     """
+    if not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
+        return
     full = os.sched_getaffinity(0)
     if threads >= len(full):
         return
