@@ -60,8 +60,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--split", default=None, choices=["dev", "test"], help="only this split")
 
     lr = sub.add_parser("reference-line", help="a table reference line from the reference mesh")
-    lr.add_argument("name", help="convex_hull or bounding_sphere")
+    lr.add_argument("name", help="convex_hull, bounding_sphere or reseeded_truth")
     lr.add_argument("--reference", required=True, help="reference mesh (PLY)")
+    lr.add_argument("--truth", default=None, help="the case's ground_truth.json (reseeded_truth needs it)")
     lr.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json)")
 
     for sp in (r, pr, b):
@@ -150,7 +151,7 @@ def _run(args) -> int:
     elif args.command == "reference-line":
         from ipm.reference_lines import write_reference_line
 
-        write_reference_line(args.name, args.reference, args.out)
+        write_reference_line(args.name, args.reference, args.out, truth=args.truth)
     return 0
 
 

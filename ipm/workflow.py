@@ -68,11 +68,11 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
         fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra)
 
 
-def reference_line_step(name: str, reference: str, mesh: str, threads: int = 1, log=None):
+def reference_line_step(name: str, reference: str, truth: str, mesh: str, threads: int = 1, log=None):
     with _logged(log, threads):
         from ipm.reference_lines import write_reference_line
 
-        write_reference_line(name, reference, Path(mesh).parent)
+        write_reference_line(name, reference, Path(mesh).parent, truth=truth)
 
 
 def evaluate_step(reference: str, truth: str, mesh: str, timing: str, metrics: str, preview: str, row: dict,

@@ -103,3 +103,30 @@ def test_parameter_recovery_only_where_it_means_something():
     assert parameter_recovery(load_case("cup_1"), None, 1.0, 1.0) == {}  # a baseline has no parameters
     tree = _params(load_case("tree_t1"))
     assert parameter_recovery(load_case("cup_1"), tree, 1.0, 1.0) == {}  # another generator
+
+
+def test_reseeded_truth_line_is_the_truth_with_another_random_stream(tmp_path):
+    import trimesh
+
+    from ipm.io import load_mesh
+    from ipm.reference_lines import REFERENCE_LINES, write_reference_line
+    from ipm.synth import ground_truth_mesh, write_reference
+
+    line = REFERENCE_LINES["reseeded_truth"]
+    assert line.applies(load_case("tree_t1")) and line.applies(load_case("tree_1"))
+    assert not line.applies(load_case("tree_ext")) and not line.applies(load_case("cup_1"))  # no random stream
+    write_reference("tree_t1", tmp_path / "ref")
+    with pytest.raises(UserError, match="needs the case's ground_truth.json"):
+        write_reference_line("reseeded_truth", str(tmp_path / "ref" / "reference.ply"), str(tmp_path / "x"))
+    write_reference_line("reseeded_truth", str(tmp_path / "ref" / "reference.ply"), str(tmp_path / "line"),
+                         truth=str(tmp_path / "ref" / "ground_truth.json"))
+    v, f, _, _ = ground_truth_mesh(load_case("tree_t1"))
+    other = load_mesh(tmp_path / "line" / "mesh.ply")
+    truth = trimesh.Trimesh(v, f, process=False)
+    assert not np.array_equal(other.bounds, truth.bounds)  # another tree ...
+    assert abs(np.ptp(other.vertices[:, 1]) - np.ptp(v[:, 1])) < 0.02 * np.ptp(v[:, 1])  # ... of the same height
+    assert abs(other.vertices[:, 1].min()) < 1e-6  # standing where the truth stands
+    write_reference("cup_1", tmp_path / "cup")
+    with pytest.raises(UserError, match="does not apply"):
+        write_reference_line("reseeded_truth", str(tmp_path / "cup" / "reference.ply"), str(tmp_path / "y"),
+                             truth=str(tmp_path / "cup" / "ground_truth.json"))

@@ -93,10 +93,13 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert set(table["case"]) == cases
     assert set(table["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "diffSDF-style (2 views)",
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
-                                   "convex hull (reference)", "bounding sphere (reference)"}
+                                   "convex hull (reference)", "bounding sphere (reference)",
+                                   "true parameters, other seed (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    # diff: 2 cases x 2 seeds; GA, COLMAP: their cases; the rest: every case, once
-    assert len(table) == 4 + 2 + 1 + 4 * len(cases)
+    # diff: 2 cases x 2 seeds; GA, COLMAP: their cases; the reseeded truth: the one stochastic
+    # in-family case (tree_1); the rest: every case, once
+    assert len(table) == 4 + 2 + 1 + 1 + 4 * len(cases)
+    assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]
     assert set(diff["case"]) == {"cup_1", "cup_t2"} and sorted(diff["seed"]) == [0, 0, 1, 1]
     assert set(table.loc[table["case"] == "cup_t2", "split"]) == {"test"}

@@ -5,10 +5,10 @@ from snakemake.utils import validate
 validate(config, schema="../schemas/config.schema.yaml", set_default=True)
 
 from ipm.methods import METHODS, row_label
+from ipm.reference_lines import REFERENCE_LINES
 
 METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v"
 """Row ids of methods: the registered name and the number of views, e.g. visual_hull_12v."""
-LINE_LABELS = {"convex_hull": "convex hull (reference)", "bounding_sphere": "bounding sphere (reference)"}
 
 
 wildcard_constraints:
@@ -90,7 +90,7 @@ def row_info(wildcards):
     """Label and kind of a table row: ours ("method", takes a generator), a baseline, a reference line."""
     if wildcards.row.startswith("line_"):
         name = wildcards.row[len("line_"):]
-        return {"label": LINE_LABELS[name], "kind": "reference"}
+        return {"label": REFERENCE_LINES[name].label, "kind": "reference"}
     m = method_of(wildcards)
     kind = "method" if METHODS[m["name"]].uses_generator else "baseline"
     return {"label": row_label(m["name"], m["views"]), "kind": kind}
@@ -136,11 +136,18 @@ def input_view_dirs():
 
 def all_metrics():
     """Metrics files of every (row, case, seed): method rows on their cases and seeds, reference
-    lines (no random choices) on every case with the first seed."""
+    lines (no random choices) on every case they apply to, with the case's first seed."""
     out = [f"results/evaluate/{m['name']}_{m['views']}v/{case}/s{seed}/metrics.json"
            for m in config["methods"] for case in method_cases(m) for seed in method_seeds(m, case)]
     return out + [f"results/evaluate/line_{name}/{case}/s{case_seeds(case)[0]}/metrics.json"
-                  for name in config["reference_lines"] for case in config["cases"]]
+                  for name in config["reference_lines"] for case in config["cases"] if line_applies(name, case)]
+
+
+def line_applies(name, case):
+    """Whether reference line ``name`` applies to ``case`` (the reseeded truth: stochastic in-family cases)."""
+    from ipm.synth import load_case
+
+    return REFERENCE_LINES[name].applies(load_case(case))
 
 
 def all_parts_previews():

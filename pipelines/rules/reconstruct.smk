@@ -45,6 +45,7 @@ rule reconstruct:
 rule reference_line:
     input:
         reference=rules.reference.output.reference,
+        truth=rules.reference.output.truth,
     output:
         mesh="results/reconstruct/line_{name}/{case}/s{seed}/mesh.ply",
         timing="results/reconstruct/line_{name}/{case}/s{seed}/timing.json",
