@@ -1,4 +1,4 @@
-"""The benchmark's case splits, and the seeded sampler of the test split's in-family cases.
+"""The benchmark's case splits, and the seeded sampler of in-family cases.
 
 Every case file (``datasets_synthetic/NAME.json``) says its split:
 
@@ -7,6 +7,9 @@ Every case file (``datasets_synthetic/NAME.json``) says its split:
   :func:`sample_case` from a generator's parameter space (``Generator.sample``, not from presets),
   each at least :data:`MIN_PRESET_DISTANCE` from every preset, at random poses and camera
   elevations; and out-of-family objects built by independent code (``datasets_synthetic.recipes``).
+
+The dev split holds sampled cups too (other sampler seeds), so that tuning sees the kind of
+object the test split scores.
 
 ``python -m ipm.cases`` writes the sampled case files from :data:`SAMPLED` (they are committed;
 a test checks that the sampler still draws them).
@@ -32,17 +35,20 @@ metric ray-casts every reference 64 times and voxelises it)."""
 ELEVATION_RANGE = (10.0, 35.0)
 """Camera elevation of a sampled case's input view (degrees)."""
 SAMPLED = (
-    ("cup_t1", "dishes", 1001, {"handle": True}),
-    ("cup_t2", "dishes", 1002, {"handle": False}),
-    ("cup_t3", "dishes", 1003, {"handle": True}),
-    ("cup_t4", "dishes", 1004, {"handle": False}),
-    ("tree_t1", "trees", 2001, {}),
-    ("tree_t2", "trees", 2002, {}),
-    ("tree_t3", "trees", 2003, {}),
-    ("tree_t4", "trees", 2004, {}),
+    ("cup_t1", "dishes", 1001, {"handle": True}, "test"),
+    ("cup_t2", "dishes", 1002, {"handle": False}, "test"),
+    ("cup_t3", "dishes", 1003, {"handle": True}, "test"),
+    ("cup_t4", "dishes", 1004, {"handle": False}, "test"),
+    ("tree_t1", "trees", 2001, {}, "test"),
+    ("tree_t2", "trees", 2002, {}, "test"),
+    ("tree_t3", "trees", 2003, {}, "test"),
+    ("tree_t4", "trees", 2004, {}, "test"),
+    ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
+    ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )
-"""The test split's in-family cases: (name, generator, sampler seed, sampler options). The cups
-alternate with and without a handle, so both topologies are scored."""
+"""Sampled in-family cases: (name, generator, sampler seed, sampler options, split). The test
+cups alternate with and without a handle, so both topologies are scored; the dev split has
+sampled cups too, so settings are tuned on objects of the kind the test split scores."""
 
 
 def unit_distance(generator, x: np.ndarray, y: np.ndarray) -> float:
@@ -61,8 +67,8 @@ def preset_distances(generator, x: np.ndarray) -> dict[str, float]:
     return {name: round(unit_distance(generator, x, p), 4) for name, p in sorted(generator.presets.items())}
 
 
-def sample_case(name: str, generator: str, seed: int, **options) -> dict:
-    """A test-split case drawn from ``generator``'s family with ``seed``: parameters from
+def sample_case(name: str, generator: str, seed: int, split: str = "test", **options) -> dict:
+    """A ``split`` case drawn from ``generator``'s family with ``seed``: parameters from
     ``Generator.sample(rng, **options)``, drawn again while nearer than
     :data:`MIN_PRESET_DISTANCE` to a preset or larger than :data:`MAX_TRIANGLES`; then a pose
     (yaw 0-360 degrees, offsets up to 0.1, scale 0.85-1.15) and an input camera (any azimuth,
@@ -79,7 +85,7 @@ def sample_case(name: str, generator: str, seed: int, **options) -> dict:
     nearest = min(dist, key=dist.get)
     case = {
         "name": name,
-        "split": "test",
+        "split": split,
         "description": f"A {generator}-family object drawn by the seeded sampler (ipm.cases, seed {seed}), "
                        f"not from a preset: unit-cube distance {dist[nearest]:.2f} to the nearest preset "
                        f"({nearest}).",
@@ -133,9 +139,9 @@ def write_sampled_cases(folder: str | Path) -> list[Path]:
     from ipm.io import write_json
 
     out = []
-    for name, generator, seed, options in SAMPLED:
+    for name, generator, seed, options, split in SAMPLED:
         path = Path(folder) / f"{name}.json"
-        write_json(path, sample_case(name, generator, seed, **options))
+        write_json(path, sample_case(name, generator, seed, split, **options))
         out.append(path)
     return out
 

@@ -28,10 +28,11 @@ def test_every_case_says_its_split_and_the_test_split_is_complete():
         case_split({"name": "x", "split": "train"})
 
 
-@pytest.mark.parametrize("name,generator,seed,options", SAMPLED, ids=[s[0] for s in SAMPLED])
-def test_sampled_cases_are_what_the_seeded_sampler_draws(name, generator, seed, options):
+@pytest.mark.parametrize("name,generator,seed,options,split", SAMPLED, ids=[s[0] for s in SAMPLED])
+def test_sampled_cases_are_what_the_seeded_sampler_draws(name, generator, seed, options, split):
     on_disk = load_case(name)
-    assert on_disk == sample_case(name, generator, seed, **options)  # reproducible from the seed
+    assert on_disk["split"] == split
+    assert on_disk == sample_case(name, generator, seed, split, **options)  # reproducible from the seed
     gen = get_generator(generator)
     x = gen.spec.from_dict(on_disk["source"]["params"])
     distances = preset_distances(gen, x)
