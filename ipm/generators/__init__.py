@@ -3,7 +3,7 @@ from ipm.registry import Registry
 
 GENERATORS: Registry = Registry("generator")
 
-from ipm.generators import dishes, trees  # noqa: E402,F401  (fills the registry)
+from ipm.generators import buildings, dishes, trees  # noqa: E402,F401  (fills the registry)
 
 
 def get_generator(name: str):
