@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ipm.optim.adam import adam_init, adam_update
-from ipm.optim.memetic import Individual, adam_steps, log_quality, memetic, merge_bins, share_budget
+from ipm.optim.memetic import Individual, adam_steps, log_quality, memetic, merge_bins, move_discrete, share_budget
 from ipm.profiles import PROFILES, get_profile
 from ipm.errors import UserError
 
@@ -58,7 +58,7 @@ def test_memetic_finds_the_minimum_of_a_mixed_problem(rng):
     prof = get_profile("default", population=8, ga_iterations=6, adam_per_iteration=80)
     init = [Individual(clip(np.concatenate([[k], rng.random(2), [rng.random() * 6]])), (k,), "r", lr=0.05)
             for k in (0, 0, 0, 0, 1, 0, 0, 0)]
-    best = memetic(init, evaluate, clip, key_of, 3, np.array([True, False, False]), prof, rng)
+    best = memetic(init, evaluate, clip, key_of, 3, np.array([2, 0, 0]), prof, rng)
     assert best.key == (1,) and best.best_loss < 1e-3
     np.testing.assert_allclose(best.best_z[1:3], target[1], atol=0.03)
 
@@ -68,3 +68,22 @@ def test_profiles():
     assert PROFILES["paper"].population == 16 and PROFILES["paper"].refine_res == (256, 512)
     with pytest.raises(UserError, match="unknown profile"):
         get_profile("fast")
+
+
+def test_discrete_moves_cover_many_valued_genes(rng):
+    """A two-valued gene flips without a random draw (two-valued searches keep their stream); a
+    many-valued one always changes, stays on its values, and reaches neighbours and far values."""
+    state = rng.bit_generator.state
+    np.testing.assert_array_equal(move_discrete(np.array([0.0, 1.0, 0.2]), np.array([2, 2, 2]), rng), [1, 0, 1])
+    assert rng.bit_generator.state == state
+    levels = np.array([9])
+    seen = []
+    for _ in range(400):
+        u = move_discrete(np.array([4 / 8]), levels, rng)[0]
+        k = u * 8
+        assert abs(k - round(k)) < 1e-9 and 0 <= k <= 8 and round(k) != 4
+        seen.append(round(k))
+    counts = np.bincount(seen, minlength=9)
+    assert counts[3] + counts[5] > 0.5 * len(seen)  # a step of one, about half the time plus draws
+    assert all(counts[k] > 0 for k in (0, 1, 2, 6, 7, 8))  # and any other value
+    assert move_discrete(np.array([0.0]), levels, rng)[0] > 0 and move_discrete(np.array([1.0]), levels, rng)[0] < 1

@@ -37,6 +37,11 @@ class ParamSpec:
     def index(self) -> dict[str, int]:
         return {n: i for i, n in enumerate(self.names)}
 
+    @cached_property
+    def levels(self) -> np.ndarray:
+        """Number of values of each discrete parameter, 0 for continuous ones, shape (n,)."""
+        return np.where(self.discrete, np.round(self.upper - self.lower).astype(int) + 1, 0)
+
     def to_unit(self, x: np.ndarray) -> np.ndarray:
         """Map physical values to the unit cube that optimisers work in."""
         return (np.asarray(x, np.float64) - self.lower) / (self.upper - self.lower)

@@ -119,10 +119,10 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         bar.update(1)
         bar.set_postfix(stage=state["stage"], res=state["res"], best=f"{state['best']:.5f}")
 
-    discrete = problem.spec.discrete
+    levels = problem.spec.levels
     objective = Objective(problem, views, profile.memetic_res, profile.memetic_lod, profile)
     start = initial_population(problem, profile, rng, objective.match_area)
-    best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, discrete, profile, rng, on_eval,
+    best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
                    prepare=objective.match_area)
     z = best.best_z
     for res, iters in zip(profile.refine_res, profile.refine_iterations):

@@ -9,8 +9,10 @@ Per generation (DESIGN.md, the authors' settings are ``ipm.profiles.PROFILES["pa
 2. individuals in the same initialisation bin (topology key and yaw bin) are merged (best kept);
 3. the worst ``remove_share`` are removed; the population is refilled with children of
    fitness-proportionate parents: a one-point crossover of the shape genes (pose from the
-   first parent), then each gene mutated with probability ``mutate_share / 10``, the yaw
-   jumping to a random bin with probability ``mutate_share``.
+   first parent), then each gene mutated with probability ``mutate_share / 10``, each discrete
+   gene moved with probability ``mutate_share / 5`` (:func:`move_discrete`: a two-valued gene
+   flips, a many-valued one steps to a neighbouring value or draws another), the yaw jumping to
+   a random bin with probability ``mutate_share``.
 ``evaluate(z) -> (loss, grad)`` is the only link to rendering, so the algorithm is testable alone.
 """
 from __future__ import annotations
@@ -99,17 +101,36 @@ def merge_bins(pop: list[Individual], n_shape: int, bins: int) -> list[Individua
     return sorted(best.values(), key=lambda i: i.best_loss)
 
 
+def move_discrete(u: np.ndarray, levels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """New unit-cube values for discrete genes at ``u`` with ``levels`` values each: a two-valued
+    gene flips (no random draw, so two-valued searches keep their random stream); a many-valued
+    one steps by one value up or down (reflected at the ends) or, as often, draws another value."""
+    k = np.round(u * (levels - 1)).astype(int)
+    out = (1 - k).astype(float)
+    for i in np.nonzero(levels > 2)[0]:
+        n = int(levels[i])
+        if rng.random() < 0.5:
+            step = 1 if k[i] == 0 else -1 if k[i] == n - 1 else int(rng.choice((-1, 1)))
+            new = k[i] + step
+        else:
+            new = int(rng.choice([v for v in range(n) if v != k[i]]))
+        out[i] = new / (n - 1)
+    return out
+
+
 def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Generator, n_shape: int,
-               profile: DiffProfile, discrete: np.ndarray, key_of: Callable, clip: Callable) -> Individual:
-    """Crossover (one point over the shape genes) and mutation of fitness-proportionate parents."""
+               profile: DiffProfile, levels: np.ndarray, key_of: Callable, clip: Callable) -> Individual:
+    """Crossover (one point over the shape genes) and mutation of fitness-proportionate parents;
+    ``levels``: values per shape gene (0: continuous)."""
     a, b = rng.choice(len(parents), size=2, p=probs)
     z = parents[a].best_z.copy()
     cut = rng.integers(1, n_shape)
     z[cut:n_shape] = parents[b].best_z[cut:n_shape]
     genes = rng.random(n_shape) < profile.mutate_share / 10
     z[:n_shape] = np.where(genes, z[:n_shape] + rng.normal(0.0, 0.15, n_shape), z[:n_shape])
-    flip = discrete & (rng.random(n_shape) < profile.mutate_share / 5)
-    z[:n_shape] = np.where(flip, 1.0 - np.round(z[:n_shape]), z[:n_shape])
+    flip = (levels[:n_shape] > 0) & (rng.random(n_shape) < profile.mutate_share / 5)
+    if flip.any():
+        z[:n_shape][flip] = move_discrete(z[:n_shape][flip], levels[:n_shape][flip], rng)
     if rng.random() < profile.mutate_share:
         z[n_shape] = (rng.integers(profile.yaw_bins) + 0.5) / profile.yaw_bins * 2 * np.pi
     z = clip(z)
@@ -117,7 +138,7 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 
 
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
-            n_shape: int, discrete: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
+            n_shape: int, levels: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
             on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z) -> Individual:
     """Run the memetic stage from ``initial``; the returned individual's ``best_z`` is the answer.
 
@@ -148,7 +169,7 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
         probs = np.exp(logq - logq.max())
         probs /= probs.sum()
         while len(pop) < profile.population:
-            child = make_child(pop[:keep], probs, rng, n_shape, profile, discrete, key_of, clip)
+            child = make_child(pop[:keep], probs, rng, n_shape, profile, levels, key_of, clip)
             child.z = prepare(child.z)
             child.key = key_of(child.z)
             pop.append(child)
