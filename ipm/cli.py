@@ -65,10 +65,17 @@ def _parser() -> argparse.ArgumentParser:
     lr.add_argument("--truth", default=None, help="the case's ground_truth.json (reseeded_truth needs it)")
     lr.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json)")
 
+    g = sub.add_parser("generate", help="a generator's mesh from parameters (a reconstruction's params.json)")
+    g.add_argument("--generator", required=True, help="generator name (dishes, trees, buildings)")
+    g.add_argument("--params", required=True, help="params.json of a reconstruction, or {name: value}")
+    g.add_argument("--lod", type=int, default=1, help="level of detail")
+    g.add_argument("--out", required=True, help="output mesh (.glb: parts, materials, normals, parameters; .ply)")
+    g.add_argument("--world", action="store_true", help="apply the reconstruction's pose (default: upright at the origin)")
+
     for sp in (r, pr, b):
         sp.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
         sp.add_argument("--seed", type=int, default=0, help="random seed")
-    for sp in (s, r, pr, b, e, lr, c):
+    for sp in (s, r, pr, b, e, lr, c, g):
         sp.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU threads")
         sp.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="Mitsuba/JAX device")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -148,6 +155,12 @@ def _run(args) -> int:
         from ipm.cases import describe_cases
 
         print(describe_cases(args.split))
+    elif args.command == "generate":
+        from ipm.generate import generate
+
+        info = generate(args.generator, args.params, args.lod, args.out, world=args.world)
+        parts = ", ".join(f"{k} {v}" for k, v in info["parts"].items())
+        print(f"{args.out}: {info['triangles']} triangles ({parts})")
     elif args.command == "reference-line":
         from ipm.reference_lines import write_reference_line
 

@@ -47,9 +47,16 @@ def save_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
         tmp.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary", include_attributes=True))
 
 
+PART_COLOURS = ((0.80, 0.78, 0.74), (0.35, 0.55, 0.75), (0.45, 0.33, 0.22), (0.62, 0.25, 0.20),
+                (0.30, 0.20, 0.12), (0.55, 0.55, 0.58), (0.25, 0.55, 0.22), (0.70, 0.65, 0.30))
+"""Base colours of the parts' materials, by part index (repeating)."""
+
+
 def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
-             part_names: tuple[str, ...], uv: np.ndarray | None = None) -> None:
-    """Write a GLB with one named node per part present (e.g. ``body``, ``handle``), atomically."""
+             part_names: tuple[str, ...], uv: np.ndarray | None = None, normals: np.ndarray | None = None,
+             extras: dict | None = None) -> None:
+    """Write a GLB atomically: one named node and one named material per part present (e.g.
+    ``body``, ``handle``), vertex normals if given, ``extras`` (JSON) in the scene's extras."""
     vertices, faces, labels = np.asarray(vertices), np.asarray(faces), np.asarray(labels)
     scene = trimesh.Scene()
     for k, name in enumerate(part_names):
@@ -57,10 +64,15 @@ def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, l
         if len(sel) == 0:
             continue
         used, inv = np.unique(sel, return_inverse=True)
-        visual = None
-        if uv is not None:
-            visual = trimesh.visual.TextureVisuals(uv=np.asarray(uv)[used])
-        part = trimesh.Trimesh(vertices[used], inv.reshape(-1, 3), visual=visual, process=False)
+        colour = [*PART_COLOURS[k % len(PART_COLOURS)], 1.0]
+        material = trimesh.visual.material.PBRMaterial(name=name, baseColorFactor=colour, metallicFactor=0.0,
+                                                       roughnessFactor=0.8)
+        uv_part = None if uv is None else np.asarray(uv)[used]
+        visual = trimesh.visual.TextureVisuals(uv=uv_part, material=material)
+        part = trimesh.Trimesh(vertices[used], inv.reshape(-1, 3), visual=visual, process=False,
+                               vertex_normals=None if normals is None else np.asarray(normals)[used])
         scene.add_geometry(part, node_name=name, geom_name=name)
+    if extras:
+        scene.metadata.update(extras)
     with atomic_path(path) as tmp:
-        tmp.write_bytes(scene.export(file_type="glb"))
+        tmp.write_bytes(scene.export(file_type="glb", include_normals=normals is not None))

@@ -159,7 +159,8 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
             "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace), "settings": asdict(prof)}
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
-        save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv)
+        save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
+                 normals=mesh.normals, extras={k: info[k] for k in ("generator", "params", "pose")})
         write_json(tmp / "params.json", info)
         trace.to_csv(tmp / "trace.csv", index=False)
         write_json(tmp / "timing.json", {"seconds": seconds, "evaluations": len(trace)})

@@ -626,7 +626,8 @@ def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", pr
                  "parts": sorted({gen.part_names[k] for k in np.unique(mesh.labels)})})
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
-        save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv)
+        save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
+                 normals=mesh.normals, extras={k: info[k] for k in ("generator", "params", "pose") if k in info})
         write_json(tmp / "params.json", info)
         trace.to_csv(tmp / "trace.csv", index=False)
         write_json(tmp / "timing.json", {"seconds": seconds, "evaluations": int(len(trace)),
