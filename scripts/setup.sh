@@ -6,7 +6,9 @@ cd "$(dirname "$0")/.."
 
 # Debian packages: libLLVM 19 for Dr.Jit's LLVM backend (14/15 crash), libusb for open3d,
 # libgl/libgomp for open3d's and pycolmap's shared objects.
+# Node.js and npm run the Khronos glTF validator in the tests (tests/gltf).
 pkgs="libllvm19 libusb-1.0-0 libgomp1 libgl1 libegl1"
+command -v npm >/dev/null 2>&1 || pkgs="$pkgs nodejs npm"
 missing=""
 for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
 if [ -n "$missing" ]; then
@@ -19,4 +21,5 @@ PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test]"
+npm ci --prefix tests/gltf --no-audit --no-fund --silent
 echo "setup done: activate with 'source .venv/bin/activate'"

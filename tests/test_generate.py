@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import struct
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +14,9 @@ import trimesh
 from ipm.generate import generate
 from ipm.generators import get_generator
 from tests.test_cli import _one_line_error, ipm
+
+VALIDATOR = Path(__file__).parent / "gltf"
+"""The Khronos glTF validator (npm package gltf-validator, installed by scripts/setup.sh)."""
 
 
 def _glb_json(path) -> dict:
@@ -94,3 +99,24 @@ def test_bad_options_give_one_line(tmp_path):
     assert not out.exists()
     res = ipm("generate", "--generator", "dishes", "--params", str(tmp_path / "none.json"), "--out", str(out))
     assert "parameter file not found" in _one_line_error(res)
+
+
+def test_glbs_pass_the_khronos_validator(tmp_path):
+    """Every level of detail of a building and a cup, and a reconstruction's GLB layout (posed):
+    no errors and no warnings from the Khronos glTF validator."""
+    assert (VALIDATOR / "node_modules" / "gltf-validator").is_dir(), "run scripts/setup.sh (npm ci in tests/gltf)"
+    files = []
+    for generator, preset in (("buildings", "townhouse"), ("dishes", "mug")):
+        gen = get_generator(generator)
+        pose = {"yaw": 0.3, "tilt_x": 0.0, "tilt_z": 0.0, "translation": [0.0, 0.0, 0.1], "scale": 1.2}
+        params = _params_file(tmp_path, generator, gen.presets[preset], pose)
+        for lod in gen.lods:
+            files.append(tmp_path / f"{generator}_{lod}.glb")
+            generate(generator, params, lod, files[-1], world=lod == max(gen.lods))
+    res = subprocess.run(["node", str(VALIDATOR / "validate.js"), *map(str, files)], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    reports = [json.loads(line) for line in res.stdout.splitlines()]
+    assert len(reports) == len(files)
+    for r in reports:
+        assert r["errors"] == 0 and r["warnings"] == 0, r
