@@ -43,6 +43,11 @@ SAMPLED = (
     ("tree_t2", "trees", 2002, {}, "test"),
     ("tree_t3", "trees", 2003, {}, "test"),
     ("tree_t4", "trees", 2004, {}, "test"),
+    ("building_t1", "buildings", 4001, {}, "test"),
+    ("building_t2", "buildings", 4002, {}, "test"),
+    ("building_t3", "buildings", 4003, {}, "test"),
+    ("building_t4", "buildings", 4004, {}, "test"),
+    ("building_d1", "buildings", 5001, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )

@@ -49,8 +49,9 @@ def is_tree_case(case: dict) -> bool:
     return "trees" in (case.get("generator"), src.get("generator")) or bool(getattr(recipe, "semantic", False))
 
 
-def ground_truth_mesh(case: dict, lod: int = 2):
-    """World-frame vertices, faces, part labels and UVs of a case's ground truth."""
+def ground_truth_mesh(case: dict, lod: int | None = None):
+    """World-frame vertices, faces, part labels and UVs of a case's ground truth (a generator's
+    case at ``lod``, by default the generator's ``reference_lod``)."""
     src = case["source"]
     if "generator" in src:
         gen = get_generator(src["generator"])
@@ -58,7 +59,7 @@ def ground_truth_mesh(case: dict, lod: int = 2):
             raise UserError(f"unknown preset {src['preset']!r}")
         base = gen.presets[src["preset"]] if "preset" in src else None
         x = gen.spec.from_dict(src.get("params", {}), base)
-        m = gen.mesh(x, lod)
+        m = gen.mesh(x, gen.reference_lod if lod is None else lod)
         v, f, labels, uv = m.vertices, m.faces, m.labels, m.uv
     else:
         v, f, labels, uv = RECIPES[src["recipe"]](**src.get("args", {}))

@@ -120,6 +120,8 @@ class Generator:
     part_names: tuple[str, ...]
     presets: dict[str, np.ndarray]
     lods: tuple[int, ...] = (0, 1, 2)
+    reference_lod: int = 2
+    """Level of detail of the synthetic references (the generator's full detail)."""
     differentiable: bool = True
     """False for generators without a JAX positions function (searched by the GA path only)."""
     distance_ignores: tuple[str, ...] = ()

@@ -200,6 +200,7 @@ class Buildings(Generator):
     spec = make_spec(_SPEC_ROWS)
     part_names = PARTS
     lods = (0, 1, 2, 3)
+    reference_lod = 3
     presets = {}  # filled below from named edits of the defaults
 
     def topology_key(self, x):
@@ -210,6 +211,31 @@ class Buildings(Generator):
         s["balcony_floors"] = (list(range(1, s["floors"])) if s["balconies"] == 1 else
                                list(range(s["balcony_start"], s["floors"])) if s["balconies"] == 2 else [])
         return s
+
+    def sample(self, rng):
+        """A random plausible building (the sampler of in-family cases), not a preset: footprint
+        0.7-1.8 by 0.6-1.4, 1-6 storeys (fewer more likely), windows per facade from the facade's
+        length and a spacing of 0.18-0.4 (a blank side wall with probability 1/3), 1-2 entrances,
+        any roof type, balconies on every storey or from one up with probability 1/2, a chimney on
+        half the pitched roofs; every other parameter uniform over its range."""
+        spec, ix = self.spec, self.spec.index
+        x = spec.from_unit(rng.random(len(spec)))
+        w, d = rng.uniform(0.7, 1.8), rng.uniform(0.6, 1.4)
+        floors = int(rng.choice(np.arange(1, 7), p=np.array([3, 4, 3, 2, 1, 1]) / 14))
+        spacing = rng.uniform(0.18, 0.4)
+        values = {"width": w, "depth": d, "floors": floors, "floor_height": rng.uniform(0.28, 0.4),
+                  "window_width": rng.uniform(0.08, 0.6 * spacing), "window_margin": rng.uniform(0.05, 0.15),
+                  "entrances": int(rng.choice([1, 1, 2])), "roof_type": int(rng.integers(3)),
+                  "balconies": int(rng.choice([0, 0, 1, 2])) if floors > 1 else 0,
+                  "balcony_start": int(rng.integers(1, max(floors - 1, 1) + 1)), "steps": int(rng.integers(0, 3))}
+        for facade, length in (("front", w), ("back", w), ("left", d), ("right", d)):
+            blank = facade in ("left", "right") and rng.random() < 1 / 3
+            values[f"windows_{facade}"] = 0 if blank else int(np.clip(round(length / spacing), 1, 8))
+        values["windows_front"] = max(values["windows_front"] - values["entrances"], 0)
+        values["chimney"] = int(values["roof_type"] != FLAT and rng.random() < 0.5)
+        for name, v in values.items():
+            x[ix[name]] = v
+        return spec.clip(x)
 
     def active(self, x):
         """Parameters of parts the object does not have are inert (a flat roof's slope, ...)."""
