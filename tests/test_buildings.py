@@ -10,6 +10,7 @@ import pytest
 
 from ipm.generators import get_generator
 from ipm.generators.buildings import BALCONIES, DOOR, FLAT, FRAMES, GABLE, HIP, ROOF, WALLS, WINDOWS
+from tests.test_generators import central_difference
 
 BOX = 12  # triangles per box
 
@@ -85,11 +86,6 @@ def test_facade_jacobian_matches_central_differences(gen):
     for name in ("window_width", "window_height", "window_sill", "window_inset", "window_margin",
                  "door_width", "door_height", "step_height", "floor_height"):
         i = gen.spec.index[name]
-        h = 1e-3 * span[i]
-        xp, xm = x.copy(), x.copy()
-        xp[i] += h
-        xm[i] -= h
-        fd = (np.asarray(f(jnp.asarray(xp, jnp.float32)), np.float64)
-              - np.asarray(f(jnp.asarray(xm, jnp.float32)), np.float64)) / (2 * h)
+        fd = central_difference(f, x, i, 1e-3 * span[i])
         assert np.abs(fd).max() > 0.1, name  # the parameter moves something at this level
         assert np.abs(jac[..., i] - fd).max() < 2e-2 * np.abs(fd).max(), name
