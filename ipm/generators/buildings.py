@@ -242,13 +242,13 @@ class Buildings(Generator):
         s = self._structure(self.topology_key(x))
         off = set()
         if s["roof_type"] == FLAT:
-            off |= {"roof_height", "hip_ratio"}
+            off.add("roof_height")
         else:
             off |= {"roof_thickness", "parapet_height"}
         if s["roof_type"] != HIP:
             off.add("hip_ratio")
         if not s["balcony_floors"]:
-            off |= {"balcony_depth", "balcony_width", "balcony_thickness", "railing_height", "balcony_start"}
+            off |= {"balcony_depth", "balcony_width", "balcony_thickness", "railing_height"}
         if s["balconies"] != 2:
             off.add("balcony_start")
         if not s["chimney"]:
@@ -286,18 +286,19 @@ class Buildings(Generator):
                     ("back", w, jnp.stack([0.0, 0.0, -hz]), s["windows_back"]),
                     ("right", side, jnp.stack([hx, 0.0, 0.0]), s["windows_right"]),
                     ("left", side, jnp.stack([-hx, 0.0, 0.0]), s["windows_left"])):
+                no_doors = {**ground, "is_door": np.zeros(n, bool), "steps": 0}
                 _facade_boxes(out, p, facade, length, origin, n, s["floors"], lod,
-                              ground if facade == "front" else _side(ground, n))
+                              ground if facade == "front" else no_doors)
         if lod >= 1:
             co, ch = p("cornice_offset"), p("cornice_height")
             out.boxes(WALLS, jnp.stack([-hx - co, top - ch, -hz - co]), jnp.stack([hx + co, top, hz + co]))
             fh, g = p("floor_height"), p("ground_extra")
+            bw, bd = 0.5 * p("balcony_width") * w, p("balcony_depth")
+            bt, rh = p("balcony_thickness"), p("railing_height")
             for f in s["balcony_floors"]:
                 y = f * fh + g
-                bw, bd, bt = 0.5 * p("balcony_width") * w, p("balcony_depth"), p("balcony_thickness")
                 out.boxes(BALCONIES, jnp.stack([-bw, y - bt, hz - inset]), jnp.stack([bw, y, hz + bd]))
                 if lod >= 3:
-                    rh = p("railing_height")
                     out.boxes(BALCONIES, jnp.stack([-bw, y, hz + bd - RAIL]), jnp.stack([bw, y + rh, hz + bd]))
                     out.boxes(BALCONIES, jnp.stack([-bw, y, hz]), jnp.stack([-bw + RAIL, y + rh, hz + bd - RAIL]))
                     out.boxes(BALCONIES, jnp.stack([bw - RAIL, y, hz]), jnp.stack([bw, y + rh, hz + bd - RAIL]))
@@ -350,11 +351,6 @@ class Buildings(Generator):
             return jnp.concatenate([g[2].reshape(-1, 3) for g in groups]).astype(jnp.float32)
 
         return jax.jit(positions)
-
-
-def _side(ground: dict, n: int) -> dict:
-    """The ground-floor description of a facade without entrances."""
-    return {**ground, "is_door": np.zeros(n, bool), "steps": 0}
 
 
 def _preset(**values) -> np.ndarray:
