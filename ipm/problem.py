@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.generators.base import Generator, Mesh, vertex_normals
+from ipm.generators.base import Generator, Mesh, build_mesh
 from ipm.io.views import Views
 from ipm.render.cameras import pixel_ray
 
@@ -109,15 +109,19 @@ class Problem:
         z[self.n_shape] = np.mod(z[self.n_shape], 2 * np.pi)
         return z
 
-    @lru_cache(maxsize=None)
     def vertex_fn(self, key: tuple, lod: int):
-        """Pure JAX function z (dim,) -> flattened world vertices (3 V,), for one topology."""
+        """Pure JAX function z (dim,) -> flattened world vertices (3 V,), for one topology (for a
+        generator with ``shared_positions``, one function for all, reading the discrete values from z)."""
+        return self._vertex_fn(None if self.generator.shared_positions else key, lod)
+
+    @lru_cache(maxsize=None)
+    def _vertex_fn(self, key: tuple | None, lod: int):
         positions = self.generator.positions_fn(key, lod)
         spec, n = self.spec, self.n_shape
         lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
         discrete = jnp.asarray(spec.discrete)
         disc_values = np.array(spec.default, np.float32)
-        for name, value in zip([nm for nm, d in zip(spec.names, spec.discrete) if d], key):
+        for name, value in zip([nm for nm, d in zip(spec.names, spec.discrete) if d], key or ()):
             disc_values[spec.index[name]] = value
         disc_values = jnp.asarray(disc_values)
         t0 = jnp.asarray(self.anchor_t, jnp.float32)
@@ -125,7 +129,8 @@ class Problem:
 
         def fn(z):
             u = jnp.clip(z[:n], 0.0, 1.0)
-            x = jnp.where(discrete, disc_values, lo + u * span)
+            x = lo + u * span
+            x = jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
             v = positions(x)
             p = z[n:]
             rot = _rotation(p[0], p[1], p[2])
@@ -151,8 +156,7 @@ class Problem:
         key = self.key(z)
         topo = self.generator.topology(key, lod)
         verts = np.asarray(self.vertex_fn(key, lod)(jnp.asarray(z, jnp.float32)), np.float64).reshape(-1, 3)
-        return Mesh(verts, topo.faces, vertex_normals(verts, topo.faces), topo.uv, topo.labels,
-                    self.generator.part_names)
+        return build_mesh(verts, topo, self.generator.part_names)
 
     def object_height(self, u: np.ndarray) -> float:
         """Height of the generated object in its own frame (for the initial scale)."""
@@ -160,6 +164,7 @@ class Problem:
         key = self.generator.topology_key(x)
         lod = min(self.generator.lods)
         v = np.asarray(self.generator.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)))
+        v = v[np.unique(self.generator.topology(key, lod).faces)]
         return float(max(v[:, 1].max() - v[:, 1].min(), 1e-3))
 
     def initial_z(self, u: np.ndarray, yaw: float) -> np.ndarray:

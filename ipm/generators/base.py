@@ -123,6 +123,10 @@ class Generator:
     reference_lod: int = 2
     """Level of detail of the synthetic references (the generator's full detail)."""
     differentiable: bool = True
+    shared_positions: bool = False
+    """True when ``positions_fn`` is one function for every topology of a level of detail (it reads
+    the discrete values from the vector; each topology's faces use the vertices it has), so an
+    optimiser compiles it once per level rather than once per topology."""
     """False for generators without a JAX positions function (searched by the GA path only)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
@@ -162,9 +166,19 @@ class Generator:
         key = self.topology_key(x)
         topo = self.topology(key, lod)
         verts = self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32))
-        verts = np.asarray(verts, np.float64)
-        return Mesh(verts, topo.faces, vertex_normals(verts, topo.faces), topo.uv, topo.labels,
-                    self.part_names)
+        return build_mesh(np.asarray(verts, np.float64), topo, self.part_names)
+
+
+def build_mesh(vertices: np.ndarray, topo: Topology, part_names: tuple[str, ...]) -> Mesh:
+    """A :class:`Mesh` of ``topo`` at ``vertices`` with normals, keeping only the vertices its faces use."""
+    used = np.unique(topo.faces)
+    if len(used) < len(vertices):
+        remap = np.full(len(vertices), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        vertices, uv, faces = vertices[used], topo.uv[used], remap[topo.faces]
+    else:
+        uv, faces = topo.uv, topo.faces
+    return Mesh(vertices, faces, vertex_normals(vertices, faces), uv, topo.labels, part_names)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

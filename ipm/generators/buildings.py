@@ -76,120 +76,131 @@ _BOX_FACES = np.array([[0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5], [0, 1, 5], [0
 # eaves corners 0-3 (counter-clockwise seen from above, from -x -z), ridge ends 4 (-x) and 5 (+x)
 _ROOF_FACES = np.array([[0, 1, 2], [0, 2, 3], [3, 2, 5], [3, 5, 4], [1, 0, 4], [1, 4, 5],
                         [0, 3, 4], [2, 1, 5]])
+_TEMPLATES = {"box": _BOX_FACES, "roof": _ROOF_FACES}
 # facades: along-facade direction and outward normal (the footprint's +z side has the entrances)
 _FACADES = {"front": ((1, 0, 0), (0, 0, 1)), "back": ((-1, 0, 0), (0, 0, -1)),
             "right": ((0, 0, -1), (1, 0, 0)), "left": ((0, 0, 1), (-1, 0, 0))}
 
 
-def _interleave(n_windows: int, n_doors: int) -> np.ndarray:
-    """Which of ``n_windows + n_doors`` evenly spaced slots hold doors (spread evenly)."""
-    n = n_windows + n_doors
-    is_door = np.zeros(n, bool)
-    is_door[np.round((np.arange(n_doors) + 0.5) * n / n_doors - 0.5).astype(int)] = True
-    return is_door
+def _largest(name: str) -> int:
+    return int(dict((row[0], row[2]) for row in _SPEC_ROWS)[name])
+
+
+MAX_FLOORS, MAX_WINDOWS, MAX_ENTRANCES, MAX_STEPS = (_largest(n) for n in ("floors", "windows_front", "entrances", "steps"))
 
 
 class _Solids:
-    """Collects closed solids per part: boxes as (lo, hi) corner pairs, roofs as 6 vertices."""
+    """Collects closed solids per part at their largest count, each with a flag saying whether
+    the building has it: boxes as (lo, hi) corner pairs, roofs as 6 vertices. Parts and flags may
+    be traced values; the topology keeps the flagged solids, the positions function all of them,
+    so one compiled function serves every topology of a level of detail."""
 
     def __init__(self):
-        self.groups: list[tuple[str, int, jnp.ndarray]] = []
+        self.groups: list[tuple[str, jnp.ndarray, jnp.ndarray, jnp.ndarray]] = []
 
-    def boxes(self, part: int, a: jnp.ndarray, b: jnp.ndarray) -> None:
-        """Axis-aligned boxes spanned by opposite corners ``a``, ``b`` (..., 3)."""
-        a, b = jnp.reshape(a, (-1, 3)), jnp.reshape(b, (-1, 3))
-        if a.shape[0]:
-            lo = jnp.minimum(a, b)
-            hi = jnp.maximum(jnp.maximum(a, b), lo + 1e-3)  # never flat
-            self.groups.append(("box", part, jnp.where(_BITS[None], hi[:, None, :], lo[:, None, :])))
+    def boxes(self, part, a: jnp.ndarray, b: jnp.ndarray, valid=True) -> None:
+        """Axis-aligned boxes spanned by opposite corners ``a``, ``b`` (..., 3); ``part`` and
+        ``valid`` broadcast to their count."""
+        a, b = jnp.broadcast_arrays(a, b)
+        lead = a.shape[:-1]
+        a, b = a.reshape(-1, 3), b.reshape(-1, 3)
+        lo = jnp.minimum(a, b)
+        hi = jnp.maximum(jnp.maximum(a, b), lo + 1e-3)  # never flat
+        self.groups.append(("box", jnp.broadcast_to(part, lead).ravel(), jnp.broadcast_to(valid, lead).ravel(),
+                            jnp.where(_BITS[None], hi[:, None, :], lo[:, None, :])))
 
-    def prism(self, part: int, vertices: jnp.ndarray) -> None:
-        self.groups.append(("roof", part, vertices[None]))
+    def prism(self, part: int, vertices: jnp.ndarray, valid=True) -> None:
+        self.groups.append(("roof", jnp.full(1, part), jnp.reshape(valid, (1,)), vertices[None]))
 
 
-def _facade_boxes(s: _Solids, p, facade: str, length, origin, n_open: int, floors: int, lod: int,
-                  ground: dict) -> None:
-    """Walls, openings, glass, frames and mullions of one facade, every floor.
+def _door_slots(n, n_doors, slots: int) -> jnp.ndarray:
+    """Which of ``n`` evenly spaced slots (of ``slots`` at most) hold the ``n_doors`` doors,
+    spread evenly: slot ``round((k + 1/2) n / n_doors - 1/2)`` for door k."""
+    k = jnp.arange(MAX_ENTRANCES, dtype=jnp.float32)[:, None]
+    at = jnp.round((k + 0.5) * n / jnp.maximum(n_doors, 1.0) - 0.5)
+    j = jnp.arange(slots, dtype=jnp.float32)[None, :]
+    return jnp.any((at == j) & (k < n_doors), axis=0)
+
+
+def _facade_boxes(s: _Solids, p, facade: str, length, origin, n_windows, lod: int) -> None:
+    """Walls, openings, glass, frames and mullions of one facade, every floor at once.
 
     Local coordinates: ``a`` along the facade (centred), ``y`` up, ``d`` into the building from
-    the wall plane. ``ground``: the ground floor's slots (which hold doors), the entrance steps
-    and the window split.
+    the wall plane. Arrays run over (floors, slots) at their largest counts; the front facade's
+    ground floor has the entrances among its windows, and steps and canopies before them.
     """
     along, normal = (np.asarray(v, np.float32) for v in _FACADES[facade])
     up = np.array([0.0, 1.0, 0.0], np.float32)
+    front = facade == "front"
 
-    def world(a, y, d):
-        a, y, d = jnp.broadcast_arrays(a, y, d)
-        return origin + a[..., None] * along + y[..., None] * up - d[..., None] * normal
+    def put(part, a0, a1, y0, y1, d0, d1, valid):
+        def world(a, y, d):
+            a, y, d = jnp.broadcast_arrays(a, y, d)
+            return origin + a[..., None] * along + y[..., None] * up - d[..., None] * normal
 
-    def put(part, a0, a1, y0, y1, d0, d1):
-        s.boxes(part, world(a0, y0, d0), world(a1, y1, d1))
+        s.boxes(part, world(a0, y0, d0), world(a1, y1, d1), valid)
 
     inset, half = p("window_inset"), 0.5 * length
     fh, g = p("floor_height"), p("ground_extra")
-    # the ground floor, then every upper floor at once (arrays of shape (floors - 1, openings))
-    for ground_floor, storeys in ((True, np.array([0])), (False, np.arange(1, floors))):
-        if not len(storeys):
-            continue
-        f = storeys[:, None].astype(np.float32)
-        is_door = ground["is_door"] if ground_floor else np.zeros(n_open, bool)
-        y_base = 0.0 * f if ground_floor else f * fh + g
-        y_top = (f + 1) * fh + g
-        height = y_top - y_base
-        n = len(is_door)
-        if n == 0:
-            put(WALLS, -half, half, y_base, y_top, 0.0, inset)
-            continue
-        margin = jnp.minimum(p("window_margin"), half - 0.5 * MIN_PIER)
-        slot = (length - 2 * margin) / n
-        centre = -half + margin + (np.arange(n) + 0.5) * slot
-        scale = p("side_window_scale") if facade in ("left", "right") else 1.0
-        if ground_floor:
-            scale = scale * p("ground_window_scale")
-        w_win = jnp.minimum(p("window_width") * scale, slot - MIN_PIER)
-        w = jnp.where(is_door, jnp.minimum(p("door_width"), slot - MIN_PIER), w_win)
-        sill = p("window_sill")
-        win_h = p("ground_window_height") if ground_floor else p("window_height")
-        y0_win = y_base + sill
-        y1_win = y0_win + jnp.minimum(win_h, height - sill - MIN_PIER)
-        door_y0 = ground["door_y0"]
-        door_y1 = door_y0 + jnp.minimum(p("door_height"), height - door_y0 - MIN_PIER)
-        y0 = jnp.where(is_door, door_y0, y0_win)
-        y1 = jnp.where(is_door, door_y1, y1_win)
-        a0, a1 = centre - 0.5 * w, centre + 0.5 * w
-        # piers between openings (full storey), then the wall below and above each opening
-        put(WALLS, jnp.concatenate([jnp.array([-half]), a1]), jnp.concatenate([a0, jnp.array([half])]),
-            y_base, y_top, 0.0, inset)
-        below = ~is_door | (ground["steps"] > 0)
-        put(WALLS, a0[below], a1[below], y_base, y0[..., below], 0.0, inset)
-        put(WALLS, a0, a1, y1, y_top, 0.0, inset)
-        for part, mask in ((WINDOWS, ~is_door), (DOOR, is_door)):
-            put(part, a0[mask], a1[mask], y0[..., mask], y1[..., mask], inset - GLASS, inset)
+    n_slots = MAX_WINDOWS + (MAX_ENTRANCES if front else 0)
+    f = jnp.arange(MAX_FLOORS, dtype=jnp.float32)[:, None]  # (F, 1)
+    j = jnp.arange(n_slots, dtype=jnp.float32)[None, :]  # (1, S)
+    ground = f == 0
+    storey = f < p("floors")
+    n_doors = p("entrances") if front else 0.0
+    steps = p("steps") if front else 0.0
+    n = jnp.where(ground, n_windows + n_doors, n_windows)  # openings per floor (F, 1)
+    is_door = ground & _door_slots(n_windows + n_doors, n_doors, n_slots)[None, :]  # (F, S)
+    opening = storey & (j < n)
+    y_base = jnp.where(ground, 0.0, f * fh + g)
+    y_top = (f + 1) * fh + g
+    height = y_top - y_base
+    margin = jnp.minimum(p("window_margin"), half - 0.5 * MIN_PIER)
+    slot = (length - 2 * margin) / jnp.maximum(n, 1.0)
+    centre = -half + margin + (j + 0.5) * slot
+    scale = p("side_window_scale") if facade in ("left", "right") else 1.0
+    scale = jnp.where(ground, scale * p("ground_window_scale"), scale)
+    w = jnp.where(is_door, jnp.minimum(p("door_width"), slot - MIN_PIER),
+                  jnp.minimum(p("window_width") * scale, slot - MIN_PIER))
+    sill = p("window_sill")
+    win_h = jnp.where(ground, p("ground_window_height"), p("window_height"))
+    door_y0 = steps * p("step_height")
+    y0 = jnp.where(is_door, door_y0, y_base + sill)
+    y1 = jnp.where(is_door, door_y0 + jnp.minimum(p("door_height"), height - door_y0 - MIN_PIER),
+                   y_base + sill + jnp.minimum(win_h, height - sill - MIN_PIER))
+    a0, a1 = centre - 0.5 * w, centre + 0.5 * w
+    # piers between openings (full storey; pier k ends at the facade's edge when k = n), then the
+    # wall below and above each opening
+    k = jnp.arange(n_slots + 1, dtype=jnp.float32)[None, :]
+    edge = jnp.full((MAX_FLOORS, 1), half)
+    pier_end = jnp.where(k == n, half, jnp.concatenate([a0, edge], 1))
+    put(WALLS, jnp.concatenate([-edge, a1], 1), pier_end, y_base, y_top, 0.0, inset, storey & (k <= n))
+    put(WALLS, a0, a1, y_base, y0, 0.0, inset, opening & (~is_door | (steps > 0)))
+    put(WALLS, a0, a1, y1, y_top, 0.0, inset, opening)
+    put(jnp.where(is_door, DOOR, WINDOWS), a0, a1, y0, y1, inset - GLASS, inset, opening)
+    win = opening & ~is_door
+    if lod >= 3:
+        fw, fd = p("frame_width"), p("frame_depth")
+        back = inset - GLASS
+        # frames wrap the opening's edges, so no frame face lies in a wall face
+        yf = jnp.where(is_door, y0, y0 - fw)  # a door's frame stands on its threshold
+        put(FRAMES, a0 - fw, a0 + fw, yf, y1 + fw, -fd, back, opening)
+        put(FRAMES, a1 - fw, a1 + fw, yf, y1 + fw, -fd, back, opening)
+        put(FRAMES, a0 - fw, a1 + fw, y1 - fw, y1 + fw, -fd, back, opening)
+        put(FRAMES, a0 - fw, a1 + fw, y0 - fw, y0 + fw, -fd, back, win)
+        mw, mid_a, mid_y = 0.5 * p("mullion_width"), 0.5 * (a0 + a1), 0.5 * (y0 + y1)
+        put(FRAMES, mid_a - mw, mid_a + mw, y0, y1, back - 2 * GLASS, back, win & (p("window_split") >= 1))
+        put(FRAMES, a0, a1, mid_y - mw, mid_y + mw, back - 2 * GLASS, back, win & (p("window_split") >= 2))
+    if front:
+        door = is_door[0] & opening[0]
+        dl, dr, dt = a0[0], a1[0], y1[0]
+        if lod >= 2:
+            m = jnp.arange(MAX_STEPS, dtype=jnp.float32)[:, None]  # the lowest step reaches farthest out
+            put(WALLS, dl - 0.02, dr + 0.02, 0.0, door_y0 - m * p("step_height"), -(m + 1) * p("step_depth"),
+                inset, door & (m < steps))
         if lod >= 3:
-            fw, fd = p("frame_width"), p("frame_depth")
-            back = inset - GLASS
-            # frames wrap the opening's edges, so no frame face lies in a wall face
-            yf = jnp.where(is_door, y0, y0 - fw)  # a door's frame stands on its threshold
-            put(FRAMES, a0 - fw, a0 + fw, yf, y1 + fw, -fd, back)
-            put(FRAMES, a1 - fw, a1 + fw, yf, y1 + fw, -fd, back)
-            put(FRAMES, a0 - fw, a1 + fw, y1 - fw, y1 + fw, -fd, back)
-            win = ~is_door
-            put(FRAMES, a0[win] - fw, a1[win] + fw, y0[..., win] - fw, y0[..., win] + fw, -fd, back)
-            split, mw = ground["split"], 0.5 * p("mullion_width")
-            mid_a, mid_y = 0.5 * (a0 + a1), 0.5 * (y0 + y1)
-            if split >= 1:
-                put(FRAMES, mid_a[win] - mw, mid_a[win] + mw, y0[..., win], y1[..., win], back - 2 * GLASS, back)
-            if split >= 2:
-                put(FRAMES, a0[win], a1[win], mid_y[..., win] - mw, mid_y[..., win] + mw, back - 2 * GLASS, back)
-        if ground_floor and is_door.any():
-            dl, dr, dt = a0[is_door], a1[is_door], y1[..., is_door]
-            if lod >= 2:
-                for k in range(ground["steps"]):  # the lowest step reaches farthest out
-                    put(WALLS, dl - 0.02, dr + 0.02, 0.0, door_y0 - k * p("step_height"),
-                        -(k + 1) * p("step_depth"), inset)
-            if lod >= 3:
-                over = p("canopy_overhang")
-                put(WALLS, dl - over, dr + over, dt + 0.02, dt + 0.035, -p("canopy_depth"), 0.0)
+            over = p("canopy_overhang")
+            put(WALLS, dl - over, dr + over, dt + 0.02, dt + 0.035, -p("canopy_depth"), 0.0, door)
 
 
 @GENERATORS.register("buildings")
@@ -201,6 +212,7 @@ class Buildings(Generator):
     part_names = PARTS
     lods = (0, 1, 2, 3)
     reference_lod = 3
+    shared_positions = True
     presets = {}  # filled below from named edits of the defaults
 
     def topology_key(self, x):
@@ -263,92 +275,112 @@ class Buildings(Generator):
         on[[self.spec.index[n] for n in off]] = False
         return on
 
-    def _solids(self, x, key: tuple, lod: int) -> _Solids:
-        """Every solid of the building ``x`` (jnp vector) with topology ``key`` at ``lod``."""
+    def _solids(self, x, lod: int) -> _Solids:
+        """Every solid a building can have at ``lod``, at its largest count, with flags saying
+        which ones the building ``x`` (jnp vector, discrete entries included) has."""
         ix = self.spec.index
 
         def p(name):
             return x[ix[name]]
 
-        s = self._structure(key)
         out = _Solids()
         w, d = p("width"), p("depth")
         hx, hz = 0.5 * w, 0.5 * d
-        top = s["floors"] * p("floor_height") + p("ground_extra")
+        floors, roof_type = p("floors"), p("roof_type")
+        flat = roof_type == FLAT
+        top = floors * p("floor_height") + p("ground_extra")
         inset = p("window_inset") if lod >= 2 else 0.0
         out.boxes(WALLS, jnp.stack([-hx + inset, 0.0, -hz + inset]), jnp.stack([hx - inset, top, hz - inset]))
         if lod >= 2:
-            ground = {"is_door": _interleave(s["windows_front"], s["entrances"]), "steps": s["steps"],
-                      "door_y0": s["steps"] * p("step_height"), "split": s["window_split"]}
             side = d - 2 * inset  # side facades run between the front and back walls
-            for facade, length, origin, n in (
-                    ("front", w, jnp.stack([0.0, 0.0, hz]), s["windows_front"]),
-                    ("back", w, jnp.stack([0.0, 0.0, -hz]), s["windows_back"]),
-                    ("right", side, jnp.stack([hx, 0.0, 0.0]), s["windows_right"]),
-                    ("left", side, jnp.stack([-hx, 0.0, 0.0]), s["windows_left"])):
-                no_doors = {**ground, "is_door": np.zeros(n, bool), "steps": 0}
-                _facade_boxes(out, p, facade, length, origin, n, s["floors"], lod,
-                              ground if facade == "front" else no_doors)
+            for facade, length, origin in (("front", w, jnp.stack([0.0, 0.0, hz])),
+                                           ("back", w, jnp.stack([0.0, 0.0, -hz])),
+                                           ("right", side, jnp.stack([hx, 0.0, 0.0])),
+                                           ("left", side, jnp.stack([-hx, 0.0, 0.0]))):
+                _facade_boxes(out, p, facade, length, origin, p(f"windows_{facade}"), lod)
         if lod >= 1:
             co, ch = p("cornice_offset"), p("cornice_height")
             out.boxes(WALLS, jnp.stack([-hx - co, top - ch, -hz - co]), jnp.stack([hx + co, top, hz + co]))
-            fh, g = p("floor_height"), p("ground_extra")
+            f = jnp.arange(1, MAX_FLOORS, dtype=jnp.float32)[:, None]  # storeys that may have a balcony
+            has = (f < floors) & ((p("balconies") == 1) | ((p("balconies") == 2) & (f >= p("balcony_start"))))
+            y = f * p("floor_height") + p("ground_extra")
             bw, bd = 0.5 * p("balcony_width") * w, p("balcony_depth")
-            bt, rh = p("balcony_thickness"), p("railing_height")
-            for f in s["balcony_floors"]:
-                y = f * fh + g
-                out.boxes(BALCONIES, jnp.stack([-bw, y - bt, hz - inset]), jnp.stack([bw, y, hz + bd]))
-                if lod >= 3:
-                    out.boxes(BALCONIES, jnp.stack([-bw, y, hz + bd - RAIL]), jnp.stack([bw, y + rh, hz + bd]))
-                    out.boxes(BALCONIES, jnp.stack([-bw, y, hz]), jnp.stack([-bw + RAIL, y + rh, hz + bd - RAIL]))
-                    out.boxes(BALCONIES, jnp.stack([bw - RAIL, y, hz]), jnp.stack([bw, y + rh, hz + bd - RAIL]))
+            rh, zero = p("railing_height"), jnp.zeros_like(y)
+
+            def corner(xc, yc, zc):
+                return jnp.stack(jnp.broadcast_arrays(xc, yc, zc), -1)
+
+            out.boxes(BALCONIES, corner(-bw, y - p("balcony_thickness"), hz - inset), corner(bw, y, hz + bd), has)
+            if lod >= 3:
+                out.boxes(BALCONIES, corner(-bw, y, hz + bd - RAIL), corner(bw, y + rh, hz + bd + zero), has)
+                out.boxes(BALCONIES, corner(-bw, y, hz), corner(-bw + RAIL, y + rh, hz + bd - RAIL), has)
+                out.boxes(BALCONIES, corner(bw - RAIL, y, hz), corner(bw, y + rh, hz + bd - RAIL), has)
         o = p("roof_overhang")
         ex, ez = hx + o, hz + o
-        if s["roof_type"] == FLAT:
-            rt = p("roof_thickness")
-            out.boxes(ROOF, jnp.stack([-ex, top, -ez]), jnp.stack([ex, top + rt, ez]))
-            ridge = top + rt
-            if lod >= 2:
-                ph = ridge + p("parapet_height")
-                out.boxes(ROOF, jnp.stack([-ex, ridge, ez - RAIL]), jnp.stack([ex, ph, ez]))
-                out.boxes(ROOF, jnp.stack([-ex, ridge, -ez]), jnp.stack([ex, ph, -ez + RAIL]))
-                out.boxes(ROOF, jnp.stack([ex - RAIL, ridge, -ez + RAIL]), jnp.stack([ex, ph, ez - RAIL]))
-                out.boxes(ROOF, jnp.stack([-ex, ridge, -ez + RAIL]), jnp.stack([-ex + RAIL, ph, ez - RAIL]))
-        else:
-            ridge = top + p("roof_height")
-            half_ridge = ex if s["roof_type"] == GABLE else jnp.maximum(ex - p("hip_ratio") * ez, 0.01)
-            out.prism(ROOF, jnp.stack([jnp.stack([-ex, top, -ez]), jnp.stack([ex, top, -ez]),
-                                       jnp.stack([ex, top, ez]), jnp.stack([-ex, top, ez]),
-                                       jnp.stack([-half_ridge, ridge, 0.0]), jnp.stack([half_ridge, ridge, 0.0])]))
-        if lod >= 1 and s["chimney"]:
+        rt = p("roof_thickness")
+        out.boxes(ROOF, jnp.stack([-ex, top, -ez]), jnp.stack([ex, top + rt, ez]), flat)
+        if lod >= 2:
+            r, ph = top + rt, top + rt + p("parapet_height")
+            out.boxes(ROOF, jnp.stack([-ex, r, ez - RAIL]), jnp.stack([ex, ph, ez]), flat)
+            out.boxes(ROOF, jnp.stack([-ex, r, -ez]), jnp.stack([ex, ph, -ez + RAIL]), flat)
+            out.boxes(ROOF, jnp.stack([ex - RAIL, r, -ez + RAIL]), jnp.stack([ex, ph, ez - RAIL]), flat)
+            out.boxes(ROOF, jnp.stack([-ex, r, -ez + RAIL]), jnp.stack([-ex + RAIL, ph, ez - RAIL]), flat)
+        ridge = top + p("roof_height")
+        half_ridge = jnp.where(roof_type == GABLE, ex, jnp.maximum(ex - p("hip_ratio") * ez, 0.01))
+        out.prism(ROOF, jnp.stack([jnp.stack([-ex, top, -ez]), jnp.stack([ex, top, -ez]),
+                                   jnp.stack([ex, top, ez]), jnp.stack([-ex, top, ez]),
+                                   jnp.stack([-half_ridge, ridge, 0.0]), jnp.stack([half_ridge, ridge, 0.0])]),
+                  ~flat)
+        if lod >= 1:
             cx, cz, cs = p("chimney_x") * w, p("chimney_z") * d, 0.5 * p("chimney_size")
-            out.boxes(ROOF, jnp.stack([cx - cs, top, cz - cs]), jnp.stack([cx + cs, ridge + p("chimney_height"), cz + cs]))
+            peak = jnp.where(flat, top + rt, ridge) + p("chimney_height")
+            out.boxes(ROOF, jnp.stack([cx - cs, top, cz - cs]), jnp.stack([cx + cs, peak, cz + cs]), p("chimney") == 1)
         return out
+
+    @lru_cache(maxsize=None)
+    def _layout_fn(self, lod):
+        """Jitted x -> (part, present) of every solid at ``lod``, and the solids' kinds and counts."""
+        x = jnp.asarray(self.spec.default, jnp.float32)
+        kinds = [(k, v.shape[0], v.shape[1]) for k, _, _, v in self._solids(x, lod).groups]
+
+        def layout(z):
+            groups = self._solids(z, lod).groups
+            return jnp.concatenate([g[1] for g in groups]), jnp.concatenate([g[2] for g in groups])
+
+        return jax.jit(layout), kinds
 
     @lru_cache(maxsize=None)
     def topology(self, key, lod):
         x = self.spec.default.copy()
         for name, v in zip(DISCRETE, key):
             x[self.spec.index[name]] = v
-        kinds = []  # (kind, part, solids, vertices per solid), recorded while tracing (no compile)
-        jax.eval_shape(lambda z: kinds.extend((k, part, *v.shape[:2]) for k, part, v in
-                                              self._solids(z, key, lod).groups), jnp.asarray(x, jnp.float32))
-        faces, labels, offset = [], [], 0
-        for kind, part, n, k in kinds:
-            template = _BOX_FACES if kind == "box" else _ROOF_FACES
-            faces.append((template[None] + (offset + k * np.arange(n))[:, None, None]).reshape(-1, 3))
-            labels.append(np.full(n * len(template), part, np.int32))
+        layout, kinds = self._layout_fn(lod)
+        parts, present = (np.asarray(a) for a in layout(jnp.asarray(x, jnp.float32)))
+        faces, offset, first = [], 0, 0
+        for kind, n, k in kinds:
+            template = _TEMPLATES[kind]
+            faces.append(template[None] + (offset + k * np.arange(n))[:, None, None])
             offset += n * k
+        keep = np.repeat(present.astype(bool), [len(_TEMPLATES[kind]) for kind, n, _ in kinds for _ in range(n)])
+        faces = np.concatenate([f.reshape(-1, 3) for f in faces])[keep]
+        labels = np.repeat(parts, [len(_TEMPLATES[kind]) for kind, n, _ in kinds for _ in range(n)])[keep]
         v = np.asarray(self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)), np.float64)
         fh = float(x[self.spec.index["floor_height"]])
         uv = np.stack([(v[:, 0] + v[:, 2]) / fh, v[:, 1] / fh], 1)  # one texture tile per storey
-        return Topology(np.concatenate(faces).astype(np.int64), np.concatenate(labels), uv)
+        return Topology(faces.astype(np.int64), labels.astype(np.int32), uv)
+
+    def positions_fn(self, key, lod):
+        """One function for every topology at ``lod`` (the solids at their largest counts; the
+        topology's faces use those the building has): compiled once per level of detail."""
+        return self._positions(lod)
 
     @lru_cache(maxsize=None)
-    def positions_fn(self, key, lod):
+    def _positions(self, lod):
+        discrete = jnp.asarray(self.spec.discrete)
+
         def positions(x):
-            groups = self._solids(x, key, lod).groups
-            return jnp.concatenate([g[2].reshape(-1, 3) for g in groups]).astype(jnp.float32)
+            x = jnp.where(discrete, jax.lax.stop_gradient(x), x)  # structure, not a direction to move in
+            return jnp.concatenate([g[3].reshape(-1, 3) for g in self._solids(x, lod).groups]).astype(jnp.float32)
 
         return jax.jit(positions)
 
