@@ -3,14 +3,16 @@ the out-of-family cases of ``datasets_synthetic``.
 
 A recipe returns world-frame vertices (standing on y = 0, centred on the y axis), faces with
 outward winding (Mitsuba's area emitters are one-sided), a part label per face and UVs; every part
-is closed, so the volumetric metrics apply. Recipes with ``semantic = True`` have the tree parts
-branch (0) and foliage (1), and synth writes label images for them.
+is closed, so the volumetric metrics apply. Recipes with ``semantic_labels`` have the parts of
+that label map in order (label = part + 1: trees branch, foliage; buildings wall, window, roof,
+door), and synth writes label images for them.
 """
 from __future__ import annotations
 
 import numpy as np
 import trimesh
 
+from ipm.io.semantic import BUILDING_LABELS, LABEL_NAMES
 from ipm.registry import Registry
 
 RECIPES: Registry = Registry("mesh recipe")
@@ -218,8 +220,8 @@ def space_colonisation_tree(trunk_height=0.45, crown_radius=0.5, crown_height=0.
     return v, f, labels, _cylindrical_uv(v)
 
 
-space_colonisation_tree.semantic = True
-"""Its parts are branch (0) and foliage (1): synth writes semantic label images (is_tree_case)."""
+space_colonisation_tree.semantic_labels = LABEL_NAMES
+"""Its parts are branch (0) and foliage (1): synth writes semantic label images (semantic_scheme)."""
 
 
 def _revolved(profile, sections: int) -> trimesh.Trimesh:
@@ -468,7 +470,7 @@ def conifer_tree(height=1.75, trunk_radius=0.035, crown_base=0.25, n_whorls=15, 
     return v, f, labels, _cylindrical_uv(v)
 
 
-conifer_tree.semantic = True
+conifer_tree.semantic_labels = LABEL_NAMES
 
 
 @RECIPES.register("broad_bush")
@@ -554,4 +556,151 @@ def broad_bush(height=1.25, n_stems=7, stem_lean_deg=(15.0, 50.0), stem_length=0
     return v, f, labels, _cylindrical_uv(v)
 
 
-broad_bush.semantic = True
+broad_bush.semantic_labels = LABEL_NAMES
+
+
+# Buildings: parts wall (0), window (1), roof (2), door (3), the order of BUILDING_LABELS.
+_WALL, _WINDOW, _ROOF, _DOOR = range(4)
+
+
+def _hull(points) -> trimesh.Trimesh:
+    return trimesh.convex.convex_hull(np.asarray(points, float))
+
+
+def _hip_roof(x0, x1, z0, z1, base, height, overhang) -> trimesh.Trimesh:
+    """A hip roof over the rectangle [x0, x1] x [z0, z1]: four slopes of equal pitch meeting in a
+    ridge along the longer side (a point over a square), the convex hull of eaves and ridge."""
+    x0, x1, z0, z1 = x0 - overhang, x1 + overhang, z0 - overhang, z1 + overhang
+    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    half = 0.5 * min(x1 - x0, z1 - z0)
+    top = base + height
+    if x1 - x0 >= z1 - z0:
+        ridge = [[x0 + half, top, cz], [x1 - half, top, cz]]
+    else:
+        ridge = [[cx, top, z0 + half], [cx, top, z1 - half]]
+    eaves = [[x, base, z] for x in (x0, x1) for z in (z0, z1)]
+    return _hull(eaves + ridge)
+
+
+def _facade_openings(start, end, normal, floors: int, storey: float, size, spacing: float, sill: float,
+                     skip=lambda a: False, proud: float = 0.012):
+    """Glass panes on the wall from point ``start`` to ``end`` (at y = 0) facing ``normal``: one
+    row per storey, as many as fit ``spacing`` apart, each a thin box standing ``proud`` out of the
+    wall plane (and as far into it); ``skip(a)`` drops the pane at position ``a`` along the wall."""
+    start, end, normal = (np.asarray(v, float) for v in (start, end, normal))
+    length = np.linalg.norm(end - start)
+    along = (end - start) / length
+    n = max(int(length // spacing), 0)
+    panes = []
+    for k in range(n):
+        a = (k + 0.5) * length / n
+        if skip(a):
+            continue
+        for f in range(floors):
+            c = start + along * a + np.array([0.0, f * storey + sill + 0.5 * size[1], 0.0])
+            half = 0.5 * size[0] * np.abs(along) + 0.5 * size[1] * np.array([0, 1, 0]) + proud * np.abs(normal)
+            panes.append(_box(c - half, c + half))
+    return panes
+
+
+@RECIPES.register("l_shaped_house")
+def l_shaped_house(width=1.5, depth=0.8, wing_width=0.65, wing_depth=0.75, floors=2, storey=0.34,
+                   roof_height=0.32, overhang=0.06, window=(0.13, 0.17), spacing=0.3, sill=0.09,
+                   door=(0.15, 0.26)):
+    """An L-shaped two-storey house: a main block and a wing coming forward at its right end, each
+    under its own hip roof, glass panes standing proud of the walls and a door in the inner corner
+    (boxes and convex hulls; no buildings-generator code)."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    wx0, wz1 = hx - wing_width, hz + wing_depth
+    walls = [_box([-hx, 0, -hz], [hx, h, hz]), _box([wx0, 0, hz - 0.01], [hx, h, wz1])]
+    roofs = [_hip_roof(-hx, hx, -hz, hz, h, roof_height, overhang),
+             _hip_roof(wx0, hx, hz, wz1, h, roof_height, overhang)]
+    door_a = wx0 - 0.22  # on the main front, beside the wing
+    panes = []
+    panes += _facade_openings([-hx, 0, hz], [wx0, 0, hz], [0, 0, 1], floors, storey, window, spacing, sill,
+                              skip=lambda a: abs(-hx + a - door_a) < 0.5 * spacing)
+    panes += _facade_openings([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1], floors, storey, window, spacing, sill)
+    panes += _facade_openings([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0], floors, storey, window, spacing, sill)
+    panes += _facade_openings([hx, 0, wz1], [hx, 0, -hz], [1, 0, 0], floors, storey, window, spacing, sill)
+    panes += _facade_openings([wx0, 0, wz1], [hx, 0, wz1], [0, 0, 1], floors, storey, window, spacing, sill)
+    panes += _facade_openings([wx0, 0, hz], [wx0, 0, wz1], [-1, 0, 0], floors, storey, window, spacing, sill)
+    dc = np.array([door_a, 0.0, hz])
+    doors = [_box(dc + [-0.5 * door[0], 0.0, -0.012], dc + [0.5 * door[0], door[1], 0.012])]
+    parts = walls + roofs + panes + doors
+    labels = [_WALL] * len(walls) + [_ROOF] * len(roofs) + [_WINDOW] * len(panes) + [_DOOR] * len(doors)
+    return _assemble(parts, labels)
+
+
+l_shaped_house.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("tower_block")
+def tower_block(width=1.0, depth=0.85, floors=7, storey=0.3, band=0.13, slab=0.04, penthouse=(0.55, 0.45, 0.3),
+                side_windows=3, entrance=(0.35, 0.27)):
+    """A flat-roofed tower block: ribbon windows along every storey of the front and back, single
+    windows on the sides, a glazed entrance, a roof slab and a set-back penthouse with its own roof
+    and ribbon window (boxes only; no buildings-generator code)."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    proud = 0.012
+    walls = [_box([-hx, 0, -hz], [hx, h, hz])]
+    panes, doors = [], []
+    for f in range(1, floors):
+        y0 = f * storey + 0.5 * (storey - band)
+        for z in (hz, -hz):
+            panes.append(_box([-hx + 0.06, y0, z - proud], [hx - 0.06, y0 + band, z + proud]))
+    for x, normal in ((hx, 1.0), (-hx, -1.0)):
+        panes += _facade_openings([x, 0, -hz], [x, 0, hz], [normal, 0, 0], floors, storey, (0.14, band),
+                                  depth / side_windows, 0.5 * (storey - band))
+    ex, ey = entrance
+    doors.append(_box([-0.5 * ex, 0.0, hz - proud], [0.5 * ex, ey, hz + proud]))
+    pw, pd, ph = penthouse
+    px0, pz0 = hx - pw - 0.08, -hz + 0.08  # set back from the front, towards the back right
+    roofs = [_box([-hx - 0.02, h, -hz - 0.02], [hx + 0.02, h + slab, hz + 0.02]),
+             _box([px0 - 0.03, h + slab + ph, pz0 - 0.03], [px0 + pw + 0.03, h + 2 * slab + ph, pz0 + pd + 0.03])]
+    walls.append(_box([px0, h + slab - 0.01, pz0], [px0 + pw, h + slab + ph, pz0 + pd]))
+    panes.append(_box([px0 + 0.05, h + slab + 0.08, pz0 + pd - proud], [px0 + pw - 0.05, h + slab + 0.08 + band,
+                                                                          pz0 + pd + proud]))
+    parts = walls + roofs + panes + doors
+    labels = [_WALL] * len(walls) + [_ROOF] * len(roofs) + [_WINDOW] * len(panes) + [_DOOR] * len(doors)
+    return _assemble(parts, labels)
+
+
+tower_block.semantic_labels = BUILDING_LABELS
+
+
+def _gable_roof(x0, x1, z0, z1, base, height, overhang) -> trimesh.Trimesh:
+    """A gable roof over [x0, x1] x [z0, z1] with its ridge along x: the convex hull of the eaves
+    and the ridge line."""
+    x0, x1, z0, z1 = x0 - overhang, x1 + overhang, z0 - overhang, z1 + overhang
+    zc = 0.5 * (z0 + z1)
+    return _hull([[x, base, z] for x in (x0, x1) for z in (z0, z1)] + [[x, base + height, zc] for x in (x0, x1)])
+
+
+@RECIPES.register("row_houses")
+def row_houses(widths=(0.7, 0.55), floors=(3, 2), depth=0.8, storey=0.32, roof_height=0.3, overhang=0.04,
+               window=(0.12, 0.16), spacing=0.24, sill=0.08, door=(0.14, 0.25)):
+    """Houses built wall to wall in a row, each with its own number of storeys, gable roof, glass
+    panes standing proud of the front and back walls and a front door (boxes and convex hulls; no
+    buildings-generator code)."""
+    hz = 0.5 * depth
+    x = -0.5 * sum(widths)
+    parts, labels = [], []
+    for w, n in zip(widths, floors):
+        h = n * storey
+        parts += [_box([x, 0, -hz], [x + w, h, hz]), _gable_roof(x, x + w, -hz, hz, h, roof_height, overhang)]
+        labels += [_WALL, _ROOF]
+        door_a = 0.5 * w
+        front = _facade_openings([x, 0, hz], [x + w, 0, hz], [0, 0, 1], n, storey, window, spacing, sill,
+                                 skip=lambda a, d=door_a: abs(a - d) < 0.5 * spacing)
+        back = _facade_openings([x + w, 0, -hz], [x, 0, -hz], [0, 0, -1], n, storey, window, spacing, sill)
+        parts += front + back
+        labels += [_WINDOW] * (len(front) + len(back))
+        parts.append(_box([x + door_a - 0.5 * door[0], 0, hz - 0.012], [x + door_a + 0.5 * door[0], door[1], hz + 0.012]))
+        labels.append(_DOOR)
+        x += w
+    return _assemble(parts, labels)
+
+
+row_houses.semantic_labels = BUILDING_LABELS

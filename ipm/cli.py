@@ -34,6 +34,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="the method's preparation file from ipm prepare (ga: gene statistics; default: made in the run)")
     r.add_argument("--max-tilt", type=float, default=None,
                    help="diff: let the object lean up to this many radians (default 0: upright, on y = 0)")
+    r.add_argument("--window-weight", type=float, default=None,
+                   help="diff: weight of the window-mask term for buildings with semantic images (default 1; 0: silhouette only)")
 
     pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics)")
     pr.add_argument("method", help="registered method name with a preparation stage (ga)")
@@ -115,6 +117,12 @@ def _run(args) -> int:
             if not 0.0 <= args.max_tilt <= 0.5:  # also false for NaN
                 raise UserError(f"--max-tilt: needs 0 to 0.5 radians, got {args.max_tilt}")
             extra["max_tilt"] = args.max_tilt
+        if args.window_weight is not None:
+            if args.method != "diff":
+                raise UserError("--window-weight applies to the diff path only")
+            if not 0.0 <= args.window_weight <= 100.0:  # also false for NaN
+                raise UserError(f"--window-weight: needs 0 to 100, got {args.window_weight}")
+            extra["window_weight"] = args.window_weight
         set_mitsuba_variant(args.device, args.threads)
         info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views, **extra)

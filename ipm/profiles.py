@@ -48,6 +48,9 @@ class DiffProfile:
     by at most this share: one view cannot tell a handle hidden behind the body from none."""
     spp: int = 4
     """Samples per pixel of the silhouette renders."""
+    window_weight: float = 1.0
+    """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
+    buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""
     max_tilt: float = 0.0
     """Bound of the two tilt angles (radians). 0 holds the object upright, as the scene convention
     has it (DESIGN.md): from one view a tilt of a few degrees trades against the profile's shape
@@ -70,4 +73,7 @@ def get_profile(name: str, **overrides) -> DiffProfile:
     """The named profile with ``overrides`` applied; ``UserError`` for unknown names."""
     if name not in PROFILES:
         raise UserError(f"unknown profile {name!r} (known: {', '.join(PROFILES)})")
+    unknown = sorted(set(overrides) - set(DiffProfile.__dataclass_fields__))
+    if unknown:
+        raise UserError(f"unknown diff setting(s) {', '.join(unknown)} (known: {', '.join(DiffProfile.__dataclass_fields__)})")
     return replace(PROFILES[name], **overrides)

@@ -1,7 +1,8 @@
 """Synthetic references: a case (generator + ground truth, or a foreign recipe) -> rendered views.
 
 ``ipm synth --case CASE --out DIR`` writes DIR/transforms.json, DIR/rgb/, DIR/masks/,
-DIR/reference.ply and DIR/ground_truth.json. In the ``hemi`` layout view 0 is the single
+DIR/reference.ply and DIR/ground_truth.json, and DIR/semantic/ label images for classes that have
+them (trees: branch, foliage; buildings: wall, window, roof, door). In the ``hemi`` layout view 0 is the single
 input view (15-30 deg elevation) and further views lie on a Fibonacci hemisphere; the ``ring``
 layout (COLMAP) puts textured views on rings. All views share the world frame.
 """
@@ -41,12 +42,25 @@ def load_case(name: str) -> dict:
         raise UserError(f"malformed case file {name}.json: {exc}") from None
 
 
-def is_tree_case(case: dict) -> bool:
-    """True for cases reconstructed by the trees generator (or built by a tree recipe): their
-    synth writes semantic label images (0 background, 1 branch, 2 foliage) beside the RGB."""
+def semantic_scheme(case: dict) -> tuple[dict, np.ndarray] | None:
+    """The label map of a case's semantic images and the label of each part of its ground truth
+    (a generator's ``part_semantic``; a recipe's parts are its ``semantic_labels`` in order), or
+    None for classes without semantic images (cups)."""
     src = case.get("source", {})
-    recipe = RECIPES[src["recipe"]] if src.get("recipe") in RECIPES else None
-    return "trees" in (case.get("generator"), src.get("generator")) or bool(getattr(recipe, "semantic", False))
+    if "generator" in src:
+        gen = get_generator(src["generator"])
+        return (gen.semantic_labels, np.asarray(gen.part_semantic)) if gen.semantic_labels else None
+    names = getattr(RECIPES[src["recipe"]], "semantic_labels", None) if src.get("recipe") in RECIPES else None
+    return (names, np.arange(1, len(names))) if names else None
+
+
+def is_tree_case(case: dict) -> bool:
+    """True for cases whose semantic images are the trees' (0 background, 1 branch, 2 foliage):
+    their references are rendered in the part colours that ``labels_from_rgb`` reads."""
+    from ipm.io.semantic import LABEL_NAMES
+
+    scheme = semantic_scheme(case)
+    return scheme is not None and scheme[0] == LABEL_NAMES
 
 
 def ground_truth_mesh(case: dict, lod: int | None = None):
@@ -101,7 +115,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     """Render the case's references into ``out`` (atomically: all or nothing)."""
     from tqdm import tqdm
 
-    from ipm.io.semantic import LABEL_NAMES, save_labels
+    from ipm.io.semantic import save_labels
     from ipm.render.semantic import render_labels, render_tree_rgb
     from ipm.render.silhouette import SilhouetteRenderer
     from ipm.render.textured import render_rgb
@@ -114,10 +128,13 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     center, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
     cam = spec.get("camera", {})
     c2w = view_cameras(center, radius, n_views, cam.get("azimuth_deg", 0.0), cam.get("elevation_deg", 22.0), layout)
-    tree = is_tree_case(spec)
+    scheme, tree = semantic_scheme(spec), is_tree_case(spec)
     with atomic_dir(out) as tmp:
+        if scheme:
+            names, part_label = scheme
+            top = max(names.values())
+            semantic = render_labels(v, f, part_label[labels] - 1, c2w, FOV_X, res, res, spp, n_parts=top)
         if tree:  # part colours (brown, green) that labels_from_rgb reads; masks = labelled pixels
-            semantic = render_labels(v, f, labels, c2w, FOV_X, res, res, spp)
             rgb = render_tree_rgb(v, f, labels, c2w, FOV_X, res, res, spp)
             masks = (semantic > 0).astype(np.float32)
         else:
@@ -129,10 +146,10 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             save_mask(tmp / "masks" / f"{i:03d}.png", masks[i] > 0.5)
             frames.append({"file_path": f"rgb/{i:03d}.png", "mask_path": f"masks/{i:03d}.png",
                            "transform_matrix": c2w[i]})
-            if tree:
-                save_labels(tmp / "semantic" / f"{i:03d}.png", semantic[i])
+            if scheme:
+                save_labels(tmp / "semantic" / f"{i:03d}.png", semantic[i], top)
                 frames[-1]["semantic_path"] = f"semantic/{i:03d}.png"
-        write_views(tmp / "transforms.json", FOV_X, res, res, frames, LABEL_NAMES if tree else None)
+        write_views(tmp / "transforms.json", FOV_X, res, res, frames, scheme[0] if scheme else None)
         _write_reference(tmp, spec, v, f, labels)
 
 

@@ -55,9 +55,10 @@ def prepare_step(method: str, generator: str, out: str, profile: str, seed: int,
 
 
 def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, profile: str, seed: int,
-                     n_input_views: int, prepared: str | None = None, threads: int = 1, log=None):
+                     n_input_views: int, prepared: str | None = None, settings: dict | None = None,
+                     threads: int = 1, log=None):
     """One reconstruction, ours or a baseline (the generator goes only to methods that take one,
-    ``prepared`` only to methods with a preparation stage)."""
+    ``prepared`` only to methods with a preparation stage; ``settings`` override the profile's)."""
     with _logged(log, threads, mitsuba=True):
         from ipm.methods import METHODS
 
@@ -65,7 +66,8 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
         extra = {"generator": generator} if fn.uses_generator else {}
         if prepared:
             extra["prepared"] = prepared
-        fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra)
+        fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra,
+           **dict(settings or {}))
 
 
 def reference_line_step(name: str, reference: str, truth: str, mesh: str, threads: int = 1, log=None):

@@ -17,9 +17,10 @@ from ipm.synth import list_cases, load_case
 def test_every_case_says_its_split_and_the_test_split_is_complete():
     cases = {name: load_case(name) for name in list_cases()}
     splits = {name: case_split(c) for name, c in cases.items()}
-    assert {"cup_1", "cup_2", "cup_ext", "tree_1", "tree_2", "tree_ext"} <= {n for n, s in splits.items() if s == "dev"}
+    dev = {n for n, s in splits.items() if s == "dev"}
+    assert {"cup_1", "cup_2", "cup_ext", "tree_1", "tree_2", "tree_ext", "building_1", "building_ext"} <= dev
     test = [c for n, c in cases.items() if splits[n] == "test"]
-    for gen in ("dishes", "trees"):  # at least 4 sampled and 2 independently built cases per class
+    for gen in ("dishes", "trees", "buildings"):  # at least 4 sampled and 2 independently built cases per class
         assert sum(c["generator"] == gen and "sampler" in c for c in test) >= 4
         assert sum(c["generator"] == gen and "recipe" in c["source"] for c in test) >= 2
     for c in test:

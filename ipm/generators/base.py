@@ -128,6 +128,16 @@ class Generator:
     the discrete values from the vector; each topology's faces use the vertices it has), so an
     optimiser compiles it once per level rather than once per topology."""
     """False for generators without a JAX positions function (searched by the GA path only)."""
+    semantic_labels: dict[str, int] | None = None
+    """Label map of the class's semantic images (``ipm.io.semantic``), None if it has none."""
+    part_semantic: tuple[int, ...] = ()
+    """The semantic label of each part (with ``semantic_labels``)."""
+    mask_class: str | None = None
+    """Semantic class whose mask the differentiable path matches beside the silhouette (buildings:
+    window), weighted by the profile's ``window_weight``; None: silhouette only."""
+    min_fit_lod: int = 0
+    """Lowest level of detail the differentiable path searches at (the first that has the
+    ``mask_class`` parts: buildings' windows appear at level 2)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""

@@ -24,6 +24,7 @@ import numpy as np
 
 from ipm.generators import GENERATORS
 from ipm.generators.base import Generator, Topology, make_spec
+from ipm.io.semantic import BUILDING_LABELS
 
 PARTS = ("walls", "windows", "frames", "roof", "door", "balconies")
 WALLS, WINDOWS, FRAMES, ROOF, DOOR, BALCONIES = range(len(PARTS))
@@ -213,6 +214,11 @@ class Buildings(Generator):
     lods = (0, 1, 2, 3)
     reference_lod = 3
     shared_positions = True
+    semantic_labels = BUILDING_LABELS
+    part_semantic = tuple(BUILDING_LABELS[c] for c in ("wall", "window", "wall", "roof", "door", "wall"))
+    """Frames and balconies count as wall: a window mask is the glass."""
+    mask_class = "window"
+    min_fit_lod = 2
     presets = {}  # filled below from named edits of the defaults
 
     def topology_key(self, x):

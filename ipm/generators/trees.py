@@ -57,6 +57,7 @@ import numpy as np
 from ipm.errors import UserError
 from ipm.generators import GENERATORS
 from ipm.generators.base import Generator, Mesh, make_spec
+from ipm.io.semantic import BRANCH, FOLIAGE, LABEL_NAMES
 
 N_LEVELS = 3
 """Branch levels below the trunk (W-P ``Levels`` counts the trunk too)."""
@@ -688,6 +689,8 @@ class Trees(Generator):
     name = "trees"
     spec = make_spec(_SPEC_ROWS)
     part_names = ("branch", "foliage")
+    semantic_labels = LABEL_NAMES
+    part_semantic = (BRANCH, FOLIAGE)
     lods = tuple(_LOD)
     differentiable = False
     """No JAX positions function: the branching structure jumps with the parameters."""

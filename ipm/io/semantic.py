@@ -1,4 +1,5 @@
-"""Semantic label images of trees: 0 = background, 1 = branch, 2 = foliage (DESIGN.md).
+"""Semantic label images: trees 0 = background, 1 = branch, 2 = foliage (DESIGN.md); buildings
+0 = background, 1 = wall, 2 = window, 3 = roof, 4 = door (``BUILDING_LABELS``).
 
 The tree similarity loss (``ipm.losses.tree``) compares such images. A reference photo becomes
 one by colour alone, as the paper does "in simple cases" ("green corresponds to leaves, brown or
@@ -31,7 +32,10 @@ BACKGROUND, BRANCH, FOLIAGE = 0, 1, 2
 """Label values, as ``semantic_labels`` in ``transforms.json``."""
 
 LABEL_NAMES = {"background": BACKGROUND, "branch": BRANCH, "foliage": FOLIAGE}
-"""Label name -> value, the ``semantic_labels`` record."""
+"""Label name -> value of trees, the ``semantic_labels`` record."""
+
+BUILDING_LABELS = {"background": 0, "wall": 1, "window": 2, "roof": 3, "door": 4}
+"""Label name -> value of buildings: window masks are the pixels labelled ``window``."""
 
 GREEN_HUE = (55.0, 175.0)
 """Hue band (degrees, inclusive) of foliage."""
@@ -46,17 +50,18 @@ BG_TOLERANCE = 0.12
 """Largest per-channel difference from the border colour that still counts as background."""
 
 
-def check_labels(labels, what: str = "label image") -> np.ndarray:
-    """``labels`` as a uint8 (H, W) array with values in {0, 1, 2}; ``UserError`` otherwise."""
+def check_labels(labels, what: str = "label image", max_label: int = FOLIAGE) -> np.ndarray:
+    """``labels`` as a uint8 (H, W) array with values in 0..``max_label`` (trees: 0 background,
+    1 branch, 2 foliage); ``UserError`` otherwise."""
     if not isinstance(labels, np.ndarray):
         raise UserError(f"{what}: expected a numpy uint8 array, got {type(labels).__name__}")
     if labels.dtype != np.uint8:
-        raise UserError(f"{what}: expected dtype uint8 (0 background, 1 branch, 2 foliage), got {labels.dtype}")
+        raise UserError(f"{what}: expected dtype uint8 label values, got {labels.dtype}")
     if labels.ndim != 2 or labels.shape[0] == 0 or labels.shape[1] == 0:
         raise UserError(f"{what}: expected a non-empty (H, W) array, got shape {labels.shape}")
     top = int(labels.max())
-    if top > FOLIAGE:
-        raise UserError(f"{what}: value {top} is not a label (0 background, 1 branch, 2 foliage)")
+    if top > max_label:
+        raise UserError(f"{what}: value {top} is not a label (0..{max_label})")
     return labels
 
 
@@ -122,14 +127,14 @@ def labels_from_rgb(rgb, mask=None) -> np.ndarray:
     return labels
 
 
-def save_labels(path: str | os.PathLike, labels) -> None:
+def save_labels(path: str | os.PathLike, labels, max_label: int = FOLIAGE) -> None:
     """Write a label image as an 8-bit single-channel PNG, atomically."""
-    labels = check_labels(labels)
+    labels = check_labels(labels, max_label=max_label)
     with atomic_path(path) as tmp:
         Image.fromarray(labels).save(tmp, format="PNG")
 
 
-def load_labels(path: str | os.PathLike, w: int, h: int) -> np.ndarray:
+def load_labels(path: str | os.PathLike, w: int, h: int, max_label: int = FOLIAGE) -> np.ndarray:
     """Read an 8-bit label PNG of size ``w`` x ``h``; ``UserError`` for a missing, odd or bad file."""
     path = Path(path)
     if not path.is_file():
@@ -145,4 +150,4 @@ def load_labels(path: str | os.PathLike, w: int, h: int) -> np.ndarray:
         raise UserError(f"cannot read label image {path}: {exc}") from None
     if labels.shape != (h, w):
         raise UserError(f"label image {path} is {labels.shape[1]}x{labels.shape[0]}, expected {w}x{h}")
-    return check_labels(labels, f"label image {path}")
+    return check_labels(labels, f"label image {path}", max_label)

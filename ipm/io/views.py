@@ -86,7 +86,8 @@ def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = Tr
     """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input.
 
     With ``semantics``, the frames' ``semantic_path`` label images are read too when the frames
-    have them (all frames or none; each of the views' size, values 0..2, ``ipm.io.semantic``).
+    have them (all frames or none; each of the views' size, values 0..2, or up to the largest value
+    of the file's ``semantic_labels``; ``ipm.io.semantic``).
     """
     path = Path(path)
     if not path.is_file():
@@ -138,7 +139,12 @@ def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = Tr
         if len(labelled) != len(frames):
             missing = next(i for i in range(len(frames)) if i not in set(labelled))
             raise UserError(f"{path}: frame {missing} has no semantic_path (all frames or none must have one)")
-        sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height) for fr in frames])
+        names = data.get("semantic_labels")
+        try:
+            top = max(int(v) for v in names.values()) if isinstance(names, dict) and names else 2
+        except (TypeError, ValueError):
+            raise UserError(f"{path}: semantic_labels must map label names to integers") from None
+        sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height, top) for fr in frames])
     return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
                  data.get("semantic_labels"), sem_arr)
 

@@ -1,7 +1,9 @@
 """The differentiable path: memetic search at low resolution, then Adam at doubling resolutions.
 
 Loss: mean over views of the pixel MSE between the Mitsuba silhouette and the reference
-mask, plus the generator's smoothness prior. Pose (yaw, tilts, translation, scale) is
+mask, plus the generator's smoothness prior; for a generator with a ``mask_class`` (buildings:
+windows) and views with semantic images, plus ``window_weight`` times the MSE between the rendered
+and the reference masks of that class (without semantic images: the silhouette alone). Pose (yaw, tilts, translation, scale) is
 optimised with the shape (``ipm.problem``); the tilts only where the profile allows them.
 """
 from __future__ import annotations
@@ -24,22 +26,43 @@ from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
 
 
+def class_masks(generator, views: Views) -> tuple[np.ndarray, int] | None:
+    """The reference masks (n, H, W) of the generator's ``mask_class`` and that class's label, or
+    None when the generator has none or the views have no semantic images that name it."""
+    name = generator.mask_class
+    if name is None or views.semantics is None or name not in (views.semantic_labels or {}):
+        return None
+    value = int(views.semantic_labels[name])
+    return (views.semantics == value).astype(np.float32), generator.semantic_labels[name]
+
+
 class Objective:
-    """Silhouette loss and gradient of ``z`` at one resolution and level of detail."""
+    """Silhouette (and class mask) loss and gradient of ``z`` at one resolution and level of detail."""
 
     def __init__(self, problem: Problem, views: Views, width: int, lod: int, profile: DiffProfile):
         self.problem, self.lod, self.reg = problem, lod, profile.reg_weight
         self.targets = resize_masks(views.masks, width)
         h = self.targets.shape[1]
         self.renderer = SilhouetteRenderer(views.c2w, views.fov_x, width, h, profile.spp)
+        masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
+        self.class_targets = None if masks is None else resize_masks(masks[0], width)
+        self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.calls = 0
+
+    def highlight(self, topo) -> np.ndarray | None:
+        """Faces of the mask class (bool per face), or None without a class term."""
+        if self.class_targets is None:
+            return None
+        return np.asarray(self.problem.generator.part_semantic)[topo.labels] == self.class_label
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
         key = self.problem.key(z)
         topo = self.problem.generator.topology(key, self.lod)
         loss, grad = self.renderer.loss_and_grad(self.problem.vertex_fn(key, self.lod), z, topo.faces,
                                                  len(topo.uv), self.targets,
-                                                 seed=self.calls if seed is None else seed)
+                                                 seed=self.calls if seed is None else seed,
+                                                 highlight=self.highlight(topo), highlight_targets=self.class_targets,
+                                                 highlight_weight=self.class_weight)
         self.calls += 1
         reg, reg_grad = self.problem.regulariser(z, self.reg)
         return loss + reg, grad + reg_grad
@@ -48,7 +71,7 @@ class Objective:
         key = self.problem.key(z)
         topo = self.problem.generator.topology(key, self.lod)
         verts = np.asarray(self.problem.vertex_fn(key, self.lod)(z)).reshape(-1, 3)
-        return self.renderer.render(verts, topo.faces)
+        return self.renderer.render(verts, topo.faces)  # the silhouette
 
     def match_area(self, z: np.ndarray, rounds: int = 2) -> np.ndarray:
         """Rescale ``z`` so its silhouettes cover as many pixels as the targets (a robust start:
@@ -119,15 +142,15 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         bar.update(1)
         bar.set_postfix(stage=state["stage"], res=state["res"], best=f"{state['best']:.5f}")
 
-    levels = problem.spec.levels
-    objective = Objective(problem, views, profile.memetic_res, profile.memetic_lod, profile)
+    levels, least = problem.spec.levels, problem.generator.min_fit_lod
+    objective = Objective(problem, views, profile.memetic_res, max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
                    prepare=objective.match_area)
     z = best.best_z
     for res, iters in zip(profile.refine_res, profile.refine_iterations):
         state.update(stage="refine", res=res, best=np.inf)
-        objective = Objective(problem, views, res, profile.refine_lod, profile)
+        objective = Objective(problem, views, res, max(profile.refine_lod, least), profile)
         ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
         adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
         z = ind.best_z
@@ -151,7 +174,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     views = load_views(views_path).first(n_input_views)
     problem = Problem(gen, *estimate_anchor(views), max_tilt=prof.max_tilt)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
-    mesh = problem.world_mesh(z, prof.output_lod)
+    mesh = problem.world_mesh(z, max(prof.output_lod, gen.min_fit_lod))
     if not np.all(np.isfinite(mesh.vertices)):
         raise FloatingPointError("the reconstruction diverged (non-finite vertices)")
     seconds = time.perf_counter() - t0

@@ -3,7 +3,8 @@
 Two renderers of the same images, for two jobs:
 
 - :func:`render_labels` (Mitsuba, for references): every part is an area emitter of its own
-  colour (part 0 red, part 1 green) and nothing else lights the scene, so a pixel's value is the
+  colour (part 0 red, part 1 green, part 2 blue; more parts in further passes) and nothing else
+  lights the scene, so a pixel's value is the
   share of it covered by each part's closest visible surface (box filter). The pixel is object
   when the parts together cover more than half of it, and then takes the label of the part that
   covers most of it (the majority rule of :func:`majority_labels`).
@@ -27,8 +28,6 @@ from ipm.render.cameras import sensor_dict
 INVALID = np.iinfo(np.uint32).max
 """open3d's primitive id of a ray that hit nothing."""
 
-PART_EMISSION = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-"""Emitted colour of part 0 (red) and part 1 (green) in :func:`render_labels`."""
 
 TREE_COLOURS = np.array([[0.30, 0.17, 0.08], [0.16, 0.45, 0.10]])
 """Diffuse colour of branches (brown) and foliage (green) in :func:`render_tree_rgb`: both fall
@@ -204,34 +203,38 @@ def _emitter_mesh(name: str, v: np.ndarray, f: np.ndarray, colour):
 
 
 def render_labels(vertices, faces, face_labels, c2w, fov_x: float, width: int, height: int,
-                  spp: int = 64) -> np.ndarray:
+                  spp: int = 64, n_parts: int | None = None) -> np.ndarray:
     """Label images (n, height, width) uint8 rendered with Mitsuba (rule: module docstring).
 
-    Each part (at most two: ``PART_EMISSION``) becomes one mesh, an area emitter of its colour
-    with a black BSDF, rendered by a path tracer of depth 1 (only directly visible emission), so
-    the closest visible surface wins and a pixel's channels are the parts' coverages. The mesh
-    must be closed and wound outwards (Mitsuba's area emitters are one-sided). Needs a Mitsuba
-    variant set by the entry point (``ipm.runtime.set_mitsuba_variant``).
+    Each part becomes one mesh with a black BSDF; in each pass up to three parts are area emitters
+    of a unit colour (``PART_EMISSION`` and blue) and the others only occlude, and a path tracer of
+    depth 1 (only directly visible emission) makes a pixel's channels those parts' coverages:
+    trees (two parts) take one pass, buildings' four classes two. The mesh must be closed and
+    wound outwards (Mitsuba's area emitters are one-sided). Needs a Mitsuba variant set by the
+    entry point (``ipm.runtime.set_mitsuba_variant``).
     """
     import mitsuba as mi
 
-    v, f, lab = _check_mesh(vertices, faces, face_labels, len(PART_EMISSION))
+    v, f, lab = _check_mesh(vertices, faces, face_labels, n_parts)
+    n_parts = int(lab.max(initial=0)) + 1 if n_parts is None else int(n_parts)
     c2w = _as_c2w(c2w)
-    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 1}}
-    for p, colour in enumerate(PART_EMISSION):
-        sel = f[lab == p]
-        if len(sel) == 0:
-            continue
-        used, inv = np.unique(sel, return_inverse=True)
-        scene[f"part_{p}"] = _emitter_mesh(f"part_{p}", v[used], inv.reshape(-1, 3), colour)
-    for i, m in enumerate(c2w):
-        scene[f"sensor_{i:03d}"] = sensor_dict(m, fov_x, width, height)
-    scene = mi.load_dict(scene)
-    out = []
-    for i in range(len(c2w)):
-        img = np.array(mi.render(scene, sensor=i, spp=spp, seed=i))
-        out.append(majority_labels(np.clip(img[..., :len(PART_EMISSION)], 0.0, 1.0)))
-    return np.stack(out)
+    sensors = {f"sensor_{i:03d}": sensor_dict(m, fov_x, width, height) for i, m in enumerate(c2w)}
+    coverage = np.zeros((len(c2w), height, width, n_parts))
+    for first in range(0, n_parts, 3):
+        scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 1}, **sensors}
+        for p in range(n_parts):
+            sel = f[lab == p]
+            if len(sel) == 0:
+                continue
+            colour = np.eye(3)[p - first] if first <= p < first + 3 else np.zeros(3)
+            used, inv = np.unique(sel, return_inverse=True)
+            scene[f"part_{p}"] = _emitter_mesh(f"part_{p}", v[used], inv.reshape(-1, 3), colour)
+        scene = mi.load_dict(scene)
+        last = min(first + 3, n_parts)
+        for i in range(len(c2w)):
+            img = np.array(mi.render(scene, sensor=i, spp=spp, seed=i))
+            coverage[i, ..., first:last] = np.clip(img[..., :last - first], 0.0, 1.0)
+    return majority_labels(coverage)
 
 
 def render_tree_rgb(vertices, faces, face_labels, c2w, fov_x: float, width: int, height: int,

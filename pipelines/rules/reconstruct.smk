@@ -33,6 +33,7 @@ rule reconstruct:
         n_input_views=method_views,
         generator=case_generator,
         profile=config["profile"],
+        settings=lambda wildcards: method_of(wildcards).get("settings", {}),
     threads: 1
     resources:
         mem_mb=4000,

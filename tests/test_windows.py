@@ -1,0 +1,151 @@
+"""Buildings' semantic images and the window-mask term of the differentiable path: references
+with wall, window, roof and door labels, the window term's gradient against finite differences,
+the silhouette-only fallback, and a building reconstructed then regenerated at every level of
+detail (part names, normals, the Khronos validator)."""
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from ipm.errors import UserError
+from ipm.generate import generate
+from ipm.generators import get_generator
+from ipm.io import load_views
+from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
+from ipm.methods import METHODS
+from ipm.methods.diff import Objective, class_masks
+from ipm.problem import Problem, estimate_anchor
+from ipm.profiles import get_profile
+from ipm.render.cameras import orbit_camera
+from ipm.render.silhouette import SilhouetteRenderer
+from tests.test_generate import VALIDATOR, _glb_json
+
+
+@pytest.fixture(scope="module")
+def building_views(tmp_path_factory, mitsuba_cpu):
+    """building_1 rendered at 96 px, one view."""
+    from ipm.synth import synthesize
+
+    out = tmp_path_factory.mktemp("synth") / "building_1"
+    synthesize("building_1", out, n_views=1, res=96, spp=8, progress=False)
+    return out
+
+
+def test_building_references_have_window_labels(building_views):
+    data = json.loads((building_views / "transforms.json").read_text())
+    assert data["semantic_labels"] == BUILDING_LABELS
+    views = load_views(building_views / "transforms.json")
+    labels = views.semantics[0]
+    assert {BUILDING_LABELS[c] for c in ("background", "wall", "window", "roof")} <= set(np.unique(labels))
+    # the labelled pixels are the silhouette (both rendered with 1 px box filters)
+    obj, mask = labels > 0, views.masks[0] > 0.5
+    assert (obj & mask).sum() / (obj | mask).sum() > 0.95
+    windows = class_masks(get_generator("buildings"), views)[0]
+    assert 0.02 * mask.sum() < windows.sum() < 0.5 * mask.sum()  # windows are a small part of the facade
+
+
+def test_label_values_beyond_the_map_are_refused(tmp_path):
+    labels = np.zeros((8, 8), np.uint8)
+    labels[2:4, 2:4] = 4  # a door
+    save_labels(tmp_path / "door.png", labels, max_label=4)
+    assert load_labels(tmp_path / "door.png", 8, 8, max_label=4)[2, 2] == 4
+    with pytest.raises(UserError, match="value 4 is not a label"):
+        load_labels(tmp_path / "door.png", 8, 8)  # trees: 0..2
+
+
+def _window_gradients(name):
+    """Mitsuba's d loss / d z of the window term alone (two render seeds), its central difference,
+    and the silhouette term's gradient (the target differs from the model only in the windows)."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    z0 = problem.initial_z(gen.spec.to_unit(gen.presets["house"]), 0.4)
+    i = gen.spec.index[name]
+    key = problem.key(z0)
+    topo, fn = gen.topology(key, 2), problem.vertex_fn(key, 2)
+    highlight = np.asarray(gen.part_semantic)[topo.labels] == BUILDING_LABELS["window"]
+    cams = np.stack([orbit_camera([0, 0.5, 0], 2.6, 15, 15)])
+    renderer = SilhouetteRenderer(cams, 0.7, 96, 96, spp=64)
+
+    def render(z, seed):
+        return renderer.render(np.asarray(fn(z)).reshape(-1, 3), topo.faces, seed=seed, highlight=highlight)
+
+    zt = z0.copy()
+    zt[i] += 0.2
+    target = render(zt, seed=7)
+    sil, win = target[:, 0], target[:, 1]
+
+    def loss(z, seed):
+        img = render(z, seed)
+        return np.mean((img[:, 0] - sil) ** 2) + np.mean((img[:, 1] - win) ** 2)
+
+    grads = [renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), sil, seed=s, highlight=highlight,
+                                    highlight_targets=win, highlight_weight=1.0)[1][i] for s in (1, 2)]
+    silhouette_only = renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), sil, seed=1)[1][i]
+    delta = 0.01
+    zp, zm = z0.copy(), z0.copy()
+    zp[i] += delta
+    zm[i] -= delta
+    fd = (loss(zp, 3) - loss(zm, 3)) / (2 * delta)
+    return np.array(grads), fd, silhouette_only
+
+
+@pytest.mark.parametrize("name", ["window_width", "window_sill"])
+def test_window_term_gradient_points_the_right_way(variant, name):
+    grads, fd, silhouette_only = _window_gradients(name)
+    assert fd < 0 and grads.max() < 0  # moving towards the target's windows lowers the loss
+    assert abs(silhouette_only) < 0.05 * abs(fd)  # windows do not change the silhouette
+
+
+@pytest.mark.xfail(strict=True, reason="known bias: Mitsuba's direct_projective (sppi=0) gives 0.41x (window_width) "
+                   "and 0.52x (window_sill) of the central difference on recessed windows, where the glass edge "
+                   "lies on the coplanar reveal; measured 2026-11-23, see issue 11")
+@pytest.mark.parametrize("name", ["window_width", "window_sill"])
+def test_window_term_gradient_matches_central_differences(variant, name):
+    grads, fd, _ = _window_gradients(name)
+    assert grads.mean() == pytest.approx(fd, rel=0.25)
+
+
+def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
+    gen = get_generator("buildings")
+    views = load_views(building_views / "transforms.json")
+    plain = load_views(building_views / "transforms.json", semantics=False)
+    problem = Problem(gen, *estimate_anchor(views))
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["villa"]), 0.5)
+    with_windows = Objective(problem, views, 48, 2, get_profile("smoke"))
+    fallback = Objective(problem, plain, 48, 2, get_profile("smoke"))
+    off = Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0))
+    assert with_windows.class_targets is not None and fallback.class_targets is None and off.class_targets is None
+    loss_w, loss_f, loss_off = (o(z, seed=5)[0] for o in (with_windows, fallback, off))
+    assert loss_f == pytest.approx(loss_off, rel=1e-6)
+    assert loss_w > loss_f  # the villa's windows are not building_1's
+    with pytest.raises(UserError, match="unknown diff setting"):
+        get_profile("smoke", window_wieght=1.0)
+
+
+def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_views):
+    """Reconstruct (small budget), then ``ipm generate`` from its params.json at every level of
+    detail: parts by name, normals, and no error or warning from the Khronos validator."""
+    out = tmp_path / "rec"
+    info = METHODS["diff"](building_views / "transforms.json", out, generator="buildings", profile="smoke",
+                           seed=0, progress=False, population=4, ga_iterations=2, adam_per_iteration=8)
+    gen = get_generator("buildings")
+    assert info["generator"] == "buildings" and set(info["params"]) == set(gen.spec.names)
+    nodes = [n["name"] for n in _glb_json(out / "mesh.glb")["nodes"] if "mesh" in n]
+    assert {"walls", "roof"} <= set(nodes)
+    files = []
+    for lod in gen.lods:
+        files.append(tmp_path / f"lod{lod}.glb")
+        summary = generate("buildings", out / "params.json", lod, files[-1], world=True)
+        tree = _glb_json(files[-1])
+        mesh = gen.mesh(gen.spec.from_dict(info["params"]), lod)
+        assert [n["name"] for n in tree["nodes"] if "mesh" in n] == [gen.part_names[k] for k in np.unique(mesh.labels)]
+        assert all("NORMAL" in p["attributes"] for m in tree["meshes"] for p in m["primitives"])
+        assert summary["triangles"] == len(mesh.faces)
+    res = subprocess.run(["node", str(VALIDATOR / "validate.js"), *map(str, files)], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    for report in map(json.loads, res.stdout.splitlines()):
+        assert report["errors"] == 0 and report["warnings"] == 0, report
