@@ -111,18 +111,15 @@ def _run(args) -> int:
             if method.prepare is None:
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
             extra["prepared"] = args.prepared
-        if args.max_tilt is not None:
+        for name, lo, hi, unit in (("max_tilt", 0.0, 0.5, " radians"), ("window_weight", 0.0, 100.0, "")):
+            value, flag = getattr(args, name), "--" + name.replace("_", "-")
+            if value is None:
+                continue
             if args.method != "diff":
-                raise UserError("--max-tilt applies to the diff path only")
-            if not 0.0 <= args.max_tilt <= 0.5:  # also false for NaN
-                raise UserError(f"--max-tilt: needs 0 to 0.5 radians, got {args.max_tilt}")
-            extra["max_tilt"] = args.max_tilt
-        if args.window_weight is not None:
-            if args.method != "diff":
-                raise UserError("--window-weight applies to the diff path only")
-            if not 0.0 <= args.window_weight <= 100.0:  # also false for NaN
-                raise UserError(f"--window-weight: needs 0 to 100, got {args.window_weight}")
-            extra["window_weight"] = args.window_weight
+                raise UserError(f"{flag} applies to the diff path only")
+            if not lo <= value <= hi:  # also false for NaN
+                raise UserError(f"{flag}: needs {lo:g} to {hi:g}{unit}, got {value}")
+            extra[name] = value
         set_mitsuba_variant(args.device, args.threads)
         info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views, **extra)
