@@ -52,8 +52,13 @@ def rng():
 @pytest.fixture(scope="session")
 def tiny_case(tmp_path_factory, mitsuba_cpu):
     """cup_1 rendered at 64 px with 2 views (input + one more)."""
+    return synthesized(tmp_path_factory, "cup_1", n_views=2, res=64, spp=4)
+
+
+def synthesized(tmp_path_factory, case: str, n_views: int, res: int, spp: int):
+    """The folder of ``case`` rendered by ``ipm synth`` in a fresh temporary directory."""
     from ipm.synth import synthesize
 
-    out = tmp_path_factory.mktemp("synth") / "cup_1"
-    synthesize("cup_1", out, n_views=2, res=64, spp=4, progress=False)
+    out = tmp_path_factory.mktemp("synth") / case
+    synthesize(case, out, n_views=n_views, res=res, spp=spp, progress=False)
     return out

@@ -12,6 +12,7 @@ import trimesh
 from ipm.errors import UserError
 from ipm.io import load_mesh, load_views
 from ipm.io.semantic import LABEL_NAMES, labels_from_rgb
+from tests.conftest import synthesized
 
 
 def _label_iou(a: np.ndarray, b: np.ndarray, k: int) -> float:
@@ -58,11 +59,7 @@ def test_resample_labels_keeps_the_majority():
 @pytest.fixture(scope="module")
 def tree_case(tmp_path_factory, mitsuba_cpu):
     """tree_1 at 96 px, two views (input + one more)."""
-    from ipm.synth import synthesize
-
-    out = tmp_path_factory.mktemp("trees") / "tree_1"
-    synthesize("tree_1", out, n_views=2, res=96, spp=16, progress=False)
-    return out
+    return synthesized(tmp_path_factory, "tree_1", n_views=2, res=96, spp=16)
 
 
 def test_tree_synth_writes_semantic_images(tree_case):

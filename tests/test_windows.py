@@ -21,17 +21,14 @@ from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
 from ipm.render.cameras import orbit_camera
 from ipm.render.silhouette import SilhouetteRenderer
+from tests.conftest import synthesized
 from tests.test_generate import VALIDATOR, _glb_json
 
 
 @pytest.fixture(scope="module")
 def building_views(tmp_path_factory, mitsuba_cpu):
     """building_1 rendered at 96 px, one view."""
-    from ipm.synth import synthesize
-
-    out = tmp_path_factory.mktemp("synth") / "building_1"
-    synthesize("building_1", out, n_views=1, res=96, spp=8, progress=False)
-    return out
+    return synthesized(tmp_path_factory, "building_1", n_views=1, res=96, spp=8)
 
 
 def test_building_references_have_window_labels(building_views):
