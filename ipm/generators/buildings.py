@@ -346,8 +346,9 @@ class Buildings(Generator):
     @lru_cache(maxsize=None)
     def _layout_fn(self, lod):
         """Jitted x -> (part, present) of every solid at ``lod``, and the solids' kinds and counts."""
-        x = jnp.asarray(self.spec.default, jnp.float32)
-        kinds = [(k, v.shape[0], v.shape[1]) for k, _, _, v in self._solids(x, lod).groups]
+        kinds = []  # (kind, solids, vertices per solid), recorded while tracing (no compile, no execution)
+        jax.eval_shape(lambda z: kinds.extend((k, *v.shape[:2]) for k, _, _, v in self._solids(z, lod).groups),
+                       jnp.asarray(self.spec.default, jnp.float32))
 
         def layout(z):
             groups = self._solids(z, lod).groups
@@ -362,14 +363,13 @@ class Buildings(Generator):
             x[self.spec.index[name]] = v
         layout, kinds = self._layout_fn(lod)
         parts, present = (np.asarray(a) for a in layout(jnp.asarray(x, jnp.float32)))
-        faces, offset, first = [], 0, 0
+        faces, offset = [], 0
         for kind, n, k in kinds:
-            template = _TEMPLATES[kind]
-            faces.append(template[None] + (offset + k * np.arange(n))[:, None, None])
+            faces.append((_TEMPLATES[kind][None] + (offset + k * np.arange(n))[:, None, None]).reshape(-1, 3))
             offset += n * k
-        keep = np.repeat(present.astype(bool), [len(_TEMPLATES[kind]) for kind, n, _ in kinds for _ in range(n)])
-        faces = np.concatenate([f.reshape(-1, 3) for f in faces])[keep]
-        labels = np.repeat(parts, [len(_TEMPLATES[kind]) for kind, n, _ in kinds for _ in range(n)])[keep]
+        per_solid = np.concatenate([np.full(n, len(_TEMPLATES[kind])) for kind, n, _ in kinds])  # triangles
+        keep = np.repeat(present.astype(bool), per_solid)
+        faces, labels = np.concatenate(faces)[keep], np.repeat(parts, per_solid)[keep]
         v = np.asarray(self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)), np.float64)
         fh = float(x[self.spec.index["floor_height"]])
         uv = np.stack([(v[:, 0] + v[:, 2]) / fh, v[:, 1] / fh], 1)  # one texture tile per storey
