@@ -1,5 +1,6 @@
 """Benchmark: silhouette iteration time (render + backward) per resolution, and whole single-view
-reconstructions of the cup cases with their 64-view IoU.
+reconstructions of the given cases (cups by default; buildings: ``--cases building_1 ...``) with
+their 64-view IoU.
 
     .venv/bin/python bench/reconstruct_speed.py [--device cpu|cuda] [--threads 2] [--profile default]
         [--cases cup_1 cup_2 cup_ext] [--out results/bench/reconstruct_speed.json]
@@ -8,7 +9,7 @@ reconstructions of the cup cases with their 64-view IoU.
 ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine lacks); ``--keep DIR``
 keeps each case's reference and reconstruction there, for ``ipm evaluate`` on another machine.
 Prints a table and writes the numbers as JSON (with the machine's description). Targets
-(issue 2): a default-profile cup reconstruction within 5 minutes on 2 CPU cores.
+(issues 2 and 11): a default-profile cup or building reconstruction within 5 minutes on 2 CPU cores.
 """
 from __future__ import annotations
 
@@ -69,12 +70,15 @@ def main() -> None:
         tmp = Path(tmp)
         for case in args.cases:
             synthesize(case, tmp / case, n_views=1, res=512, spp=32, progress=False)
+        generators = {case: json.loads((tmp / case / "ground_truth.json").read_text())["generator"]
+                      for case in args.cases}
         views = load_views(tmp / args.cases[0] / "transforms.json")
-        gen = get_generator("dishes")
+        gen = get_generator(generators[args.cases[0]])
+        lod = max(1, gen.min_fit_lod)
         problem = Problem(gen, *estimate_anchor(views))
-        z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.5)
+        z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.5)
         for res in args.resolutions:
-            objective = Objective(problem, views, res, 1, get_profile(args.profile))
+            objective = Objective(problem, views, res, lod, get_profile(args.profile))
             for _ in range(3):
                 objective(z)  # JIT warm-up
             t0 = time.perf_counter()
@@ -82,11 +86,11 @@ def main() -> None:
                 objective(z)
             ms = 1000 * (time.perf_counter() - t0) / args.iterations
             record["iteration_ms"][res] = ms
-            print(f"iteration at {res:4d} px (render + backward, generator lod 1): {ms:8.1f} ms", flush=True)
+            print(f"iteration at {res:4d} px (render + backward, {gen.name} lod {lod}): {ms:8.1f} ms", flush=True)
         for case in args.cases:
             for seed in args.seeds:
                 t0 = time.perf_counter()
-                info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator="dishes",
+                info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator=generators[case],
                                        profile=args.profile, seed=seed, progress=False)
                 seconds = time.perf_counter() - t0
                 if args.keep:
@@ -95,7 +99,9 @@ def main() -> None:
                     shutil.copy(tmp / case / "reference.ply", keep / "reference.ply")
                     for name in ("mesh.ply", "params.json"):
                         shutil.copy(tmp / f"rec_{case}" / name, keep / f"seed{seed}_{name}")
-                row = {"seconds": seconds, "evaluations": info["evaluations"], "has_handle": info["params"]["has_handle"]}
+                discrete = {name: info["params"][name] for name, d in
+                            zip(get_generator(generators[case]).spec.names, get_generator(generators[case]).spec.discrete) if d}
+                row = {"seconds": seconds, "evaluations": info["evaluations"], "discrete": discrete}
                 text = f"{case:8s} seed {seed}: {seconds:7.1f} s, {info['evaluations']} evaluations"
                 if not args.no_eval:
                     from ipm.metrics import evaluate_meshes
@@ -104,7 +110,7 @@ def main() -> None:
                     row.update(iou_mean=m["iou_mean"], viou=m["viou"])
                     text += f", IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}"
                 record["reconstructions"][f"{case}/seed{seed}"] = row
-                print(f"{text}, handle {info['params']['has_handle']}", flush=True)
+                print(f"{text}, {' '.join(f'{k}={v:g}' for k, v in discrete.items())}", flush=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(record, indent=2) + "\n")

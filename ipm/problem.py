@@ -117,6 +117,16 @@ class Problem:
     @lru_cache(maxsize=None)
     def _vertex_fn(self, key: tuple | None, lod: int):
         positions = self.generator.positions_fn(key, lod)
+        shape_x, world = self._maps(key)
+
+        def fn(z):
+            return world(positions(shape_x(z)), z).ravel()
+
+        return jax.jit(fn)
+
+    def _maps(self, key: tuple | None):
+        """``shape_x(z)``: physical parameters (discrete ones from ``key``, or rounded from ``z``
+        when ``key`` is None); ``world(v, z)``: generator-frame vertices (V, 3) to the world."""
         spec, n = self.spec, self.n_shape
         lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
         discrete = jnp.asarray(spec.discrete)
@@ -127,16 +137,34 @@ class Problem:
         t0 = jnp.asarray(self.anchor_t, jnp.float32)
         s0 = float(self.anchor_s)
 
-        def fn(z):
-            u = jnp.clip(z[:n], 0.0, 1.0)
-            x = lo + u * span
-            x = jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
-            v = positions(x)
+        def shape_x(z):
+            x = lo + jnp.clip(z[:n], 0.0, 1.0) * span
+            return jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
+
+        def world(v, z):
             p = z[n:]
-            rot = _rotation(p[0], p[1], p[2])
-            s = s0 * jnp.exp(p[6])
-            t = t0 + s0 * p[3:6]
-            return (s * v @ rot.T + t).ravel()
+            return s0 * jnp.exp(p[6]) * v @ _rotation(p[0], p[1], p[2]).T + (t0 + s0 * p[3:6])
+
+        return shape_x, world
+
+    @lru_cache(maxsize=None)
+    def group_vertex_fn(self, lod: int, groups: tuple[tuple[int, ...], ...]):
+        """For a generator with ``shared_positions``: pure JAX z -> world vertices of every render
+        group, flattened (G * 3 V,). Group g keeps the vertices of the solids the object ``z`` has
+        whose part is in ``groups[g]``; every other vertex goes to the object's ground point, so
+        its triangles have no area. With ``generator.all_faces(lod)`` in every group, one renderer
+        scene serves all topologies (a new Mitsuba scene costs seconds of kernel compilation)."""
+        gen = self.generator
+        positions = gen.positions_fn(None, lod)
+        shape_x, world = self._maps(None)
+        members = [jnp.asarray(np.isin(np.arange(len(gen.part_names)), g)) for g in groups]
+
+        def fn(z):
+            x = shape_x(z)
+            part, present = gen.vertex_layout(x, lod)
+            v = world(positions(x), z)
+            ground = world(jnp.zeros((1, 3), v.dtype), z)
+            return jnp.concatenate([jnp.where((present & m[part])[:, None], v, ground) for m in members]).ravel()
 
         return jax.jit(fn)
 

@@ -43,6 +43,11 @@ class DiffProfile:
     output_lod: int = 1
     """Generator level of detail of the written mesh (level 2's 128-gon pole fans have 2.8 degree
     angles, which the malformed-triangle metric would count)."""
+    polish_sweeps: int = 2
+    """Sweeps of the discrete hill climbing after the memetic stage (``ipm.methods.diff.polish``:
+    each many-valued discrete parameter one value up and down, and the half turn); 0: none."""
+    polish_steps: int = 6
+    """Adam steps given to each neighbour before it is compared."""
     occam_tolerance: float = 0.03
     """A discrete parameter goes to its simplest value (no handle) if that raises the final loss
     by at most this share: one view cannot tell a handle hidden behind the body from none."""
@@ -51,6 +56,9 @@ class DiffProfile:
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""
+    window_levels: int = 4
+    """Levels of the 2 x 2 mean pyramid over which the class-mask term is averaged (1: the
+    full-resolution MSE alone)."""
     max_tilt: float = 0.0
     """Bound of the two tilt angles (radians). 0 holds the object upright, as the scene convention
     has it (DESIGN.md): from one view a tilt of a few degrees trades against the profile's shape
@@ -65,7 +73,8 @@ PROFILES = {
     "default": DiffProfile(population=16, ga_iterations=12, adam_per_iteration=64, memetic_res=96,
                            refine_res=(128, 256), refine_iterations=(100, 60)),
     "smoke": DiffProfile(population=4, ga_iterations=2, adam_per_iteration=6, memetic_res=32,
-                         refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2),
+                         refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2,
+                         polish_sweeps=1, polish_steps=1),
 }
 
 

@@ -1,6 +1,7 @@
 """The Snakemake workflow: lint, dry run, and a smoke run of the whole DAG on tiny budgets."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -89,19 +90,19 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
                     "--directory", str(tmp_path))
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     table = pd.read_csv(tmp_path / "results/table.csv")
-    cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet"}
+    cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet", "building_1"}
     assert set(table["case"]) == cases
     assert set(table["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "diffSDF-style (2 views)",
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
                                    "convex hull (reference)", "bounding sphere (reference)",
                                    "true parameters, other seed (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    # diff: 2 cases x 2 seeds; GA, COLMAP: their cases; the reseeded truth: the one stochastic
+    # diff: 3 cases x 2 seeds; GA, COLMAP: their cases; the reseeded truth: the one stochastic
     # in-family case (tree_1); the rest: every case, once
-    assert len(table) == 4 + 2 + 1 + 1 + 4 * len(cases)
+    assert len(table) == 6 + 2 + 1 + 1 + 4 * len(cases)
     assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]
-    assert set(diff["case"]) == {"cup_1", "cup_t2"} and sorted(diff["seed"]) == [0, 0, 1, 1]
+    assert set(diff["case"]) == {"cup_1", "cup_t2", "building_1"} and sorted(diff["seed"]) == [0, 0, 0, 1, 1, 1]
     assert set(table.loc[table["case"] == "cup_t2", "split"]) == {"test"}
     assert set(table.loc[table["case"] == "cup_1", "split"]) == {"dev"}
     assert set(table.loc[table["case"] == "cup_goblet", "family"]) == {"out"}
@@ -125,13 +126,15 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert d["n_seeds"] == 2 and abs(d["iou_mean"] - runs.mean()) < 1e-4 and abs(d["iou_mean_worst"] - runs.min()) < 1e-4
     aggs = set(summary.loc[summary["label"] == "visual hull (2 views)", "case"]) - cases
     assert aggs == {"cups/dev/in", "cups/dev/out", "cups/dev/all", "cups/test/in", "cups/test/out", "cups/test/all",
-                    "trees/dev/all"}
+                    "trees/dev/all", "buildings/dev/all"}
     md = (tmp_path / "results/table1.md").read_text()
     assert md.index("cups, test split") < md.index("cups, dev split")  # Table 1 is the test split
     html = (tmp_path / "results/report/index.html").read_text()
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
     assert "test split" in html and "Parameter recovery" in html
     assert (tmp_path / "results/reconstruct/diff_1v/cup_1/s1/parts.png").is_file()
+    assert (tmp_path / "results/synth/building_1/hemi1/semantic/000.png").is_file()  # window masks for the diff path
+    assert json.loads((tmp_path / "results/reconstruct/diff_1v/building_1/s0/params.json").read_text())["generator"] == "buildings"
     assert (tmp_path / "results/reconstruct/ga_1v/tree_1/s0/parts.png").is_file()
     assert (tmp_path / "results/prepare/ga/trees/s0.json").is_file()
     assert (tmp_path / "logs/benchmark/reconstruct/diff_1v/cup_1/s0.tsv").is_file()

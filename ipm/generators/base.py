@@ -123,11 +123,12 @@ class Generator:
     reference_lod: int = 2
     """Level of detail of the synthetic references (the generator's full detail)."""
     differentiable: bool = True
+    """False for generators without a JAX positions function (searched by the GA path only)."""
     shared_positions: bool = False
     """True when ``positions_fn`` is one function for every topology of a level of detail (it reads
     the discrete values from the vector; each topology's faces use the vertices it has), so an
-    optimiser compiles it once per level rather than once per topology."""
-    """False for generators without a JAX positions function (searched by the GA path only)."""
+    optimiser compiles it once per level rather than once per topology. Such a generator also
+    implements ``all_faces`` and ``vertex_layout``, so a renderer keeps one scene for all topologies."""
     semantic_labels: dict[str, int] | None = None
     """Label map of the class's semantic images (``ipm.io.semantic``), None if it has none."""
     part_semantic: tuple[int, ...] = ()
@@ -166,6 +167,17 @@ class Generator:
 
     def positions_fn(self, key: tuple, lod: int) -> Callable:
         """A pure JAX function: physical parameter vector (n,) -> vertex positions (V, 3)."""
+        raise NotImplementedError
+
+    def all_faces(self, lod: int) -> np.ndarray:
+        """(shared_positions) Every triangle a topology of ``lod`` may have, as indices into the
+        positions: a topology's faces are a subset of these."""
+        raise NotImplementedError
+
+    def vertex_layout(self, x, lod: int):
+        """(shared_positions) JAX: part label (V,) and presence flag (V,) of every vertex for the
+        physical parameter vector ``x`` (discrete entries included); absent vertices belong to
+        solids this object does not have."""
         raise NotImplementedError
 
     def mesh(self, x: np.ndarray, lod: int = 1) -> Mesh:

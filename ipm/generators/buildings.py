@@ -178,7 +178,12 @@ def _facade_boxes(s: _Solids, p, facade: str, length, origin, n_windows, lod: in
     put(WALLS, jnp.concatenate([-edge, a1], 1), pier_end, y_base, y_top, 0.0, inset, storey & (k <= n))
     put(WALLS, a0, a1, y_base, y0, 0.0, inset, opening & (~is_door | (steps > 0)))
     put(WALLS, a0, a1, y1, y_top, 0.0, inset, opening)
-    put(jnp.where(is_door, DOOR, WINDOWS), a0, a1, y0, y1, inset - GLASS, inset, opening)
+    # the pane: at level 2 (no frames) as much of it as level 3's frames leave visible, so the
+    # window masks of the two levels agree and the pane's edges lie inside the core wall's face
+    # rather than along the reveal's (coplanar edges bias the silhouette renderer's gradients)
+    fw = jnp.minimum(p("frame_width"), 0.25 * jnp.minimum(w, y1 - y0)) if lod == 2 else 0.0
+    put(jnp.where(is_door, DOOR, WINDOWS), a0 + fw, a1 - fw, jnp.where(is_door, y0, y0 + fw), y1 - fw,
+        inset - GLASS, inset, opening)
     win = opening & ~is_door
     if lod >= 3:
         fw, fd = p("frame_width"), p("frame_depth")
@@ -357,23 +362,39 @@ class Buildings(Generator):
         return jax.jit(layout), kinds
 
     @lru_cache(maxsize=None)
+    def _faces(self, lod):
+        """Every solid's triangles at ``lod`` (indices into the positions) and triangles per solid."""
+        faces, offset = [], 0
+        for kind, n, k in self._layout_fn(lod)[1]:
+            faces.append((_TEMPLATES[kind][None] + (offset + k * np.arange(n))[:, None, None]).reshape(-1, 3))
+            offset += n * k
+        per_solid = np.concatenate([np.full(n, len(_TEMPLATES[kind])) for kind, n, _ in self._layout_fn(lod)[1]])
+        return np.concatenate(faces).astype(np.int64), per_solid
+
+    def all_faces(self, lod):
+        return self._faces(lod)[0]
+
+    def vertex_layout(self, x, lod):
+        layout, kinds = self._layout_fn(lod)
+        parts, present = layout(x)
+        per_solid = np.concatenate([np.full(n, k) for _, n, k in kinds])  # vertices per solid
+        total = int(per_solid.sum())
+        return (jnp.repeat(parts.astype(jnp.int32), per_solid, total_repeat_length=total),
+                jnp.repeat(present.astype(bool), per_solid, total_repeat_length=total))
+
+    @lru_cache(maxsize=None)
     def topology(self, key, lod):
         x = self.spec.default.copy()
         for name, v in zip(DISCRETE, key):
             x[self.spec.index[name]] = v
-        layout, kinds = self._layout_fn(lod)
-        parts, present = (np.asarray(a) for a in layout(jnp.asarray(x, jnp.float32)))
-        faces, offset = [], 0
-        for kind, n, k in kinds:
-            faces.append((_TEMPLATES[kind][None] + (offset + k * np.arange(n))[:, None, None]).reshape(-1, 3))
-            offset += n * k
-        per_solid = np.concatenate([np.full(n, len(_TEMPLATES[kind])) for kind, n, _ in kinds])  # triangles
+        parts, present = (np.asarray(a) for a in self._layout_fn(lod)[0](jnp.asarray(x, jnp.float32)))
+        faces, per_solid = self._faces(lod)
         keep = np.repeat(present.astype(bool), per_solid)
-        faces, labels = np.concatenate(faces)[keep], np.repeat(parts, per_solid)[keep]
+        faces, labels = faces[keep], np.repeat(parts, per_solid)[keep]
         v = np.asarray(self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)), np.float64)
         fh = float(x[self.spec.index["floor_height"]])
         uv = np.stack([(v[:, 0] + v[:, 2]) / fh, v[:, 1] / fh], 1)  # one texture tile per storey
-        return Topology(faces.astype(np.int64), labels.astype(np.int32), uv)
+        return Topology(faces, labels.astype(np.int32), uv)
 
     def positions_fn(self, key, lod):
         """One function for every topology at ``lod`` (the solids at their largest counts; the

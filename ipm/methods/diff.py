@@ -12,6 +12,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 from tqdm import tqdm
@@ -47,31 +48,42 @@ class Objective:
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
+        self.class_levels = profile.window_levels
         self.calls = 0
 
-    def highlight(self, topo) -> np.ndarray | None:
-        """Faces of the mask class (bool per face), or None without a class term."""
-        if self.class_targets is None:
-            return None
-        return np.asarray(self.problem.generator.part_semantic)[topo.labels] == self.class_label
+    def _groups(self, key) -> tuple:
+        """(vertex_fn, face groups, V) to render ``key``'s topology: for a generator with shared
+        positions the level's every face in each group and one vertex block per group (one scene,
+        hence one set of compiled kernels, for all topologies); else the topology's faces, split
+        by the mask class when there is a class term."""
+        gen = self.problem.generator
+        parts = np.arange(len(gen.part_names))
+        in_class = None if self.class_targets is None else np.asarray(gen.part_semantic) == self.class_label
+        if gen.shared_positions:
+            groups = (tuple(parts),) if in_class is None else (tuple(parts[~in_class]), tuple(parts[in_class]))
+            faces = gen.all_faces(self.lod)
+            return (self.problem.group_vertex_fn(self.lod, groups), [faces] * len(groups),
+                    int(faces.max()) + 1)
+        topo = gen.topology(key, self.lod)
+        faces = [topo.faces] if in_class is None else [topo.faces[~in_class[topo.labels]], topo.faces[in_class[topo.labels]]]
+        return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
-        key = self.problem.key(z)
-        topo = self.problem.generator.topology(key, self.lod)
-        loss, grad = self.renderer.loss_and_grad(self.problem.vertex_fn(key, self.lod), z, topo.faces,
-                                                 len(topo.uv), self.targets,
+        fn, faces, n_vertices = self._groups(self.problem.key(z))
+        loss, grad = self.renderer.loss_and_grad(fn, z, faces, n_vertices, self.targets,
                                                  seed=self.calls if seed is None else seed,
-                                                 highlight=self.highlight(topo), highlight_targets=self.class_targets,
-                                                 highlight_weight=self.class_weight)
+                                                 highlight_targets=self.class_targets,
+                                                 highlight_weight=self.class_weight,
+                                                 highlight_levels=self.class_levels)
         self.calls += 1
         reg, reg_grad = self.problem.regulariser(z, self.reg)
         return loss + reg, grad + reg_grad
 
     def _render(self, z: np.ndarray) -> np.ndarray:
-        key = self.problem.key(z)
-        topo = self.problem.generator.topology(key, self.lod)
-        verts = np.asarray(self.problem.vertex_fn(key, self.lod)(z)).reshape(-1, 3)
-        return self.renderer.render(verts, topo.faces)  # the silhouette
+        fn, faces, n_vertices = self._groups(self.problem.key(z))
+        verts = np.asarray(fn(jnp.asarray(z, jnp.float32))).reshape(-1, n_vertices, 3)
+        out = self.renderer.render(verts, faces)
+        return out if out.ndim == 3 else out[:, 0]  # the silhouette
 
     def match_area(self, z: np.ndarray, rounds: int = 2) -> np.ndarray:
         """Rescale ``z`` so its silhouettes cover as many pixels as the targets (a robust start:
@@ -125,6 +137,57 @@ def simplify(problem: Problem, objective: Objective, z: np.ndarray, tolerance: f
     return z
 
 
+def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.ndarray]]]:
+    """Discrete neighbours of ``z`` for :func:`polish`, by the parameter they change: each
+    many-valued discrete parameter that shapes the object one value down and up (a floor more or
+    less, a window more or less on a facade), and ``yaw``: the half turn (a house's two long
+    sides have near-identical silhouettes; its windows and door tell them apart)."""
+    spec, n = problem.spec, problem.n_shape
+    levels = spec.levels
+    active = problem.generator.active(spec.from_unit(z[:n]))
+    out = {}
+    for i in np.nonzero(spec.discrete & (levels > 2) & active)[0]:
+        k = int(round(z[i] * (levels[i] - 1)))
+        for step in (-1, 1):
+            if 0 <= k + step < levels[i]:
+                alt = z.copy()
+                alt[i] = (k + step) / (levels[i] - 1)
+                out.setdefault(spec.names[i], []).append((f"{spec.names[i]}={spec.lower[i] + k + step:g}", alt))
+    alt = z.copy()
+    alt[n] += np.pi
+    out["yaw"] = [("yaw+180", problem.clip(alt))]
+    return out
+
+
+def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
+           on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """Discrete hill climbing after the memetic stage: parameter by parameter, try the current
+    point's :func:`neighbours` with a few Adam steps each (``polish_steps``) and move to the first
+    that lowers the loss (same render seeds on both sides); up to ``polish_sweeps`` sweeps. The
+    memetic stage moves one many-valued gene at a time by chance, so a window count one off on a
+    facade would otherwise be left standing."""
+    seeds = (10_003, 10_004)
+
+    def score(x):
+        return float(np.mean([objective(x, seed=s)[0] for s in seeds]))
+
+    best = score(z)
+    for _ in range(profile.polish_sweeps):
+        improved = False
+        for param in list(neighbours(problem, z)):
+            for name, alt in neighbours(problem, z).get(param, []):
+                ind = Individual(alt, problem.key(alt), name, lr=profile.lr * 0.4)
+                adam_steps(ind, profile.polish_steps, objective, problem.clip, profile.reject_ratio, on_eval)
+                loss = score(ind.best_z)
+                record(name, loss)
+                if loss < best:
+                    z, best, improved = ind.best_z, loss, True
+                    break
+        if not improved:
+            break
+    return z
+
+
 def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int = 0,
                 progress: bool = True) -> tuple[np.ndarray, pd.DataFrame]:
     """Best ``z`` for ``views`` and the trace (one row per evaluation)."""
@@ -143,11 +206,14 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         bar.set_postfix(stage=state["stage"], res=state["res"], best=f"{state['best']:.5f}")
 
     levels, least = problem.spec.levels, problem.generator.min_fit_lod
-    objective = Objective(problem, views, profile.memetic_res, max(profile.memetic_lod, least), profile)
+    objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
                    prepare=objective.match_area)
-    z = best.best_z
+    state["stage"] = "polish"
+    z = polish(problem, objective, best.best_z, profile, on_eval,
+               lambda name, loss: rows.append(("polish", state["res"], len(rows), name, loss,
+                                               min(state["best"], loss), time.perf_counter() - t0)))
     for res, iters in zip(profile.refine_res, profile.refine_iterations):
         state.update(stage="refine", res=res, best=np.inf)
         objective = Objective(problem, views, res, max(profile.refine_lod, least), profile)

@@ -3,7 +3,10 @@
 The mesh is an area emitter of radiance 1 and there is no other light, so the rendered
 image is the mask (pixel coverage). With ``highlight`` (a face subset, a building's windows) the
 mesh is split in two emitters, (1, 0, 0) and (1, 1, 0): red is the silhouette and green the
-visible part of the subset (its mask), both edges of meshes, so both differentiate. ``direct_projective`` with ``sppi = 0`` differentiates
+visible part of the subset (its mask), both edges of meshes, so both differentiate. The groups
+may also be given as face lists with one vertex block each (a generator with shared positions
+keeps every face in both groups and moves each group's other vertices to a point, so one scene
+serves every topology). ``direct_projective`` with ``sppi = 0`` differentiates
 the visibility discontinuities at silhouette edges. Vertex positions come from a JAX
 function wrapped with ``drjit.wrap``, so gradients reach generator and pose parameters
 without hand-written chain rules.
@@ -33,19 +36,16 @@ class SilhouetteRenderer:
         self._scenes: dict = {}
         self._wrapped: dict = {}
 
-    def _scene(self, faces: np.ndarray, n_vertices: int, highlight: np.ndarray | None = None):
-        """A scene (mesh emitters + one sensor per view) for this topology, built once."""
-        mark = None if highlight is None else np.packbits(highlight).tobytes()
-        key = (n_vertices, faces.shape, faces[:16].tobytes(), faces[-16:].tobytes(), mark)
+    def _scene(self, groups: list[np.ndarray], n_vertices: int):
+        """A scene (one mesh emitter per face group + one sensor per view) for these faces, built
+        once: group 0 emits (1, 0, 0), group 1 (1, 1, 0)."""
+        key = (n_vertices, tuple((g.shape, g[:16].tobytes(), g[-16:].tobytes()) for g in groups))
         if key not in self._scenes:
             import mitsuba as mi
 
-            if highlight is None:
-                groups = {"object": (faces, [1.0, 1.0, 1.0])}
-            else:
-                groups = {"object": (faces[~highlight], [1.0, 0.0, 0.0]), "highlight": (faces[highlight], [1.0, 1.0, 0.0])}
             scene = {"type": "scene", "integrator": {"type": "direct_projective", "sppi": 0}}
-            for name, (sel, colour) in groups.items():
+            names = []
+            for name, sel, colour in zip(("object", "highlight"), groups, ([1.0, 0.0, 0.0], [1.0, 1.0, 0.0])):
                 if not len(sel):
                     continue
                 props = mi.Properties()
@@ -56,35 +56,52 @@ class SilhouetteRenderer:
                 mp["vertex_positions"] = mi.Float(np.zeros(3 * n_vertices, np.float32))
                 mp.update()
                 scene[name] = mesh
+                names.append(name)
             for i, m in enumerate(self.c2w):
                 scene[f"sensor_{i:03d}"] = sensor_dict(m, self.fov_x, self.width, self.height)
             scene = mi.load_dict(scene)
-            self._scenes[key] = (scene, mi.traverse(scene), [name for name, (sel, _) in groups.items() if len(sel)])
+            self._scenes[key] = (scene, mi.traverse(scene), names)
         return self._scenes[key]
 
-    def render(self, vertices: np.ndarray, faces: np.ndarray, seed: int = 0,
-               highlight: np.ndarray | None = None) -> np.ndarray:
-        """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients); with ``highlight``
-        (bool per face), (n, 2, height, width): the silhouette and the highlighted faces' mask."""
+    @staticmethod
+    def _groups(faces, highlight: np.ndarray | None) -> list[np.ndarray]:
+        """Face groups: ``faces`` as a list of groups, or one array split by ``highlight``."""
+        if isinstance(faces, (list, tuple)):
+            return [np.asarray(f) for f in faces]
+        faces = np.asarray(faces)
+        return [faces] if highlight is None else [faces[~highlight], faces[highlight]]
+
+    def render(self, vertices: np.ndarray, faces, seed: int = 0, highlight: np.ndarray | None = None) -> np.ndarray:
+        """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With two face groups
+        (``faces`` a list of two, vertices (V, 3) shared or (2, V, 3) one set per group; or one
+        array split by ``highlight``, a bool per face), (n, 2, height, width): the silhouette and
+        the mask of the second group where visible."""
         import mitsuba as mi
 
-        scene, params, meshes = self._scene(faces, len(vertices), highlight)
-        for name in meshes:
-            params[f"{name}.vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
+        groups = self._groups(faces, highlight)
+        vertices = np.asarray(vertices, np.float32)
+        blocks = list(vertices) if vertices.ndim == 3 else [vertices] * len(groups)
+        scene, params, names = self._scene(groups, len(blocks[0]))
+        for name, block in zip(("object", "highlight"), blocks):
+            if name in names:
+                params[f"{name}.vertex_positions"] = mi.Float(block.ravel())
         params.update()
         out = [np.array(mi.render(scene, sensor=i, spp=self.spp, seed=seed))[..., :2]
                for i in range(len(self.c2w))]
         out = np.clip(np.stack(out), 0.0, 1.0)
-        return out[..., 0] if highlight is None else np.moveaxis(out, -1, 1)
+        return out[..., 0] if len(groups) == 1 else np.moveaxis(out, -1, 1)
 
-    def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces: np.ndarray, n_vertices: int,
+    def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces, n_vertices: int,
                       targets: np.ndarray, seed: int = 0, highlight: np.ndarray | None = None,
                       highlight_targets: np.ndarray | None = None,
-                      highlight_weight: float = 0.0) -> tuple[float, np.ndarray]:
+                      highlight_weight: float = 0.0, highlight_levels: int = 1) -> tuple[float, np.ndarray]:
         """Mean over views of the pixel MSE between rendered and target masks (plus
-        ``highlight_weight`` times that of the highlighted faces' masks), and d loss / d z.
+        ``highlight_weight`` times that of the second face group's masks, averaged over
+        ``highlight_levels`` levels of a 2x2 mean pyramid), and d loss / d z.
 
-        ``vertex_fn`` is a pure JAX function z (m,) -> flattened world vertices (3 V,).
+        ``vertex_fn`` is a pure JAX function z (m,) -> flattened world vertices: (3 V,) shared by
+        the face groups, or (G * 3 V,) one block per group (``n_vertices`` = V). ``faces``: one
+        array (split by ``highlight``, a bool per face, when given) or a list of groups.
         """
         import drjit as dr
         import mitsuba as mi
@@ -93,12 +110,16 @@ class SilhouetteRenderer:
         if wrapped is None:
             wrapped = dr.wrap(source="drjit", target="jax")(vertex_fn)
             self._wrapped[vertex_fn] = wrapped
-        scene, params, meshes = self._scene(faces, n_vertices, highlight)
+        groups = self._groups(faces, highlight)
+        scene, params, names = self._scene(groups, n_vertices)
         zt = mi.TensorXf(np.asarray(z, np.float32))
         dr.enable_grad(zt)
-        verts = wrapped(zt)
-        for name in meshes:
-            params[f"{name}.vertex_positions"] = verts.array
+        verts = wrapped(zt).array
+        blocks = dr.width(verts) // (3 * n_vertices)
+        for g, name in enumerate(("object", "highlight")[: len(groups)]):
+            if name in names:
+                offset = 3 * n_vertices * g if blocks > 1 else 0
+                params[f"{name}.vertex_positions"] = dr.gather(mi.Float, verts, dr.arange(mi.UInt32, 3 * n_vertices) + offset)
         params.update()
         loss = 0.0
         n = len(self.c2w)
@@ -106,10 +127,36 @@ class SilhouetteRenderer:
             img = mi.render(scene, params, sensor=i, spp=self.spp, seed=seed * n + i)
             ref = mi.TensorXf(np.asarray(targets[i], np.float32)[..., None])
             loss = loss + dr.mean(dr.square(img[..., 0:1] - ref), axis=None) / n
-            if highlight is not None and highlight_weight > 0:
-                ref2 = mi.TensorXf(np.asarray(highlight_targets[i], np.float32)[..., None])
-                loss = loss + highlight_weight * dr.mean(dr.square(img[..., 1:2] - ref2), axis=None) / n
+            if len(groups) > 1 and highlight_weight > 0:
+                loss = loss + highlight_weight * _pyramid_mse(img[..., 1:2].array, highlight_targets[i],
+                                                              highlight_levels) / n
         dr.backward(loss)
         grad = np.array(dr.grad(zt), np.float64)
         value = float(np.array(loss.array if hasattr(loss, "array") else loss).ravel()[0])
         return value, np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _pyramid_mse(image, target: np.ndarray, levels: int):
+    """Mean over ``levels`` levels of a 2 x 2 mean pyramid of the MSE between ``image`` (a flat
+    Dr.Jit array of ``target``'s shape) and ``target``. The coarse levels compare how much of each
+    region the class covers, so a misplaced window is pulled towards the target's windows instead
+    of being shrunk away (the full-resolution MSE rewards removing windows that do not overlap)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    target = np.asarray(target, np.float32)
+    h, w = target.shape
+    total = 0.0
+    for level in range(levels):
+        total = total + dr.mean(dr.square(image - mi.Float(target.ravel())), axis=None) / levels
+        if level == levels - 1 or min(h, w) < 2:
+            break
+        h2, w2 = h // 2, w // 2
+        idx = dr.arange(mi.UInt32, h2 * w2)
+        y = idx // w2
+        base = 2 * y * w + 2 * (idx - y * w2)
+        image = 0.25 * (dr.gather(mi.Float, image, base) + dr.gather(mi.Float, image, base + 1)
+                        + dr.gather(mi.Float, image, base + w) + dr.gather(mi.Float, image, base + w + 1))
+        target = target[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2).mean((1, 3))
+        h, w = h2, w2
+    return total
