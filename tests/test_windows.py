@@ -63,11 +63,12 @@ def _window_gradients(name):
     key = problem.key(z0)
     topo, fn = gen.topology(key, 2), problem.vertex_fn(key, 2)
     highlight = np.asarray(gen.part_semantic)[topo.labels] == BUILDING_LABELS["window"]
+    groups = [topo.faces[~highlight], topo.faces[highlight]]
     cams = np.stack([orbit_camera([0, 0.5, 0], 2.6, 15, 15)])
     renderer = SilhouetteRenderer(cams, 0.7, 96, 96, spp=64)
 
     def render(z, seed):
-        return renderer.render(np.asarray(fn(z)).reshape(-1, 3), topo.faces, seed=seed, highlight=highlight)
+        return renderer.render(np.asarray(fn(z)).reshape(-1, 3), groups, seed=seed)
 
     zt = z0.copy()
     zt[i] += 0.2
@@ -78,7 +79,7 @@ def _window_gradients(name):
         img = render(z, seed)
         return np.mean((img[:, 0] - sil) ** 2) + np.mean((img[:, 1] - win) ** 2)
 
-    grads = [renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), sil, seed=s, highlight=highlight,
+    grads = [renderer.loss_and_grad(fn, z0, groups, len(topo.uv), sil, seed=s,
                                     highlight_targets=win, highlight_weight=1.0)[1][i] for s in (1, 2)]
     silhouette_only = renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), sil, seed=1)[1][i]
     delta = 0.01
@@ -139,8 +140,8 @@ def test_one_scene_serves_every_topology(building_views):
     topo = gen.topology(key, 2)
     highlight = np.asarray(gen.part_semantic)[topo.labels] == BUILDING_LABELS["window"]
     own = SilhouetteRenderer(views.c2w, views.fov_x, 48, obj.targets.shape[1], 8)
-    loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1], topo.faces, len(topo.uv), obj.targets, seed=3,
-                                   highlight=highlight, highlight_targets=obj.class_targets,
+    loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1], [topo.faces[~highlight], topo.faces[highlight]],
+                                   len(topo.uv), obj.targets, seed=3, highlight_targets=obj.class_targets,
                                    highlight_weight=obj.class_weight, highlight_levels=obj.class_levels)
     reg, reg_grad = problem.regulariser(zs[-1], obj.reg)
     assert shared_loss == pytest.approx(loss + reg, rel=1e-5)

@@ -50,20 +50,23 @@ class Objective:
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.class_levels = profile.window_levels
         self.calls = 0
+        self._shared = None  # the shared-positions rendering, built on first use
 
     def _groups(self, key) -> tuple:
         """(vertex_fn, face groups, V) to render ``key``'s topology: for a generator with shared
         positions the level's every face in each group and one vertex block per group (one scene,
-        hence one set of compiled kernels, for all topologies); else the topology's faces, split
-        by the mask class when there is a class term."""
+        hence one set of compiled kernels, for all topologies: the same for every key); else the
+        topology's faces, split by the mask class when there is a class term."""
         gen = self.problem.generator
-        parts = np.arange(len(gen.part_names))
         in_class = None if self.class_targets is None else np.asarray(gen.part_semantic) == self.class_label
         if gen.shared_positions:
-            groups = (tuple(parts),) if in_class is None else (tuple(parts[~in_class]), tuple(parts[in_class]))
-            faces = gen.all_faces(self.lod)
-            return (self.problem.group_vertex_fn(self.lod, groups), [faces] * len(groups),
-                    int(faces.max()) + 1)
+            if self._shared is None:
+                parts = np.arange(len(gen.part_names))
+                groups = (tuple(parts),) if in_class is None else (tuple(parts[~in_class]), tuple(parts[in_class]))
+                faces = gen.all_faces(self.lod)
+                self._shared = (self.problem.group_vertex_fn(self.lod, groups), [faces] * len(groups),
+                                int(faces.max()) + 1)
+            return self._shared
         topo = gen.topology(key, self.lod)
         faces = [topo.faces] if in_class is None else [topo.faces[~in_class[topo.labels]], topo.faces[in_class[topo.labels]]]
         return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
@@ -81,8 +84,7 @@ class Objective:
 
     def _render(self, z: np.ndarray) -> np.ndarray:
         fn, faces, n_vertices = self._groups(self.problem.key(z))
-        verts = np.asarray(fn(jnp.asarray(z, jnp.float32))).reshape(-1, n_vertices, 3)
-        out = self.renderer.render(verts, faces)
+        out = self.renderer.render(np.asarray(fn(jnp.asarray(z, jnp.float32))).reshape(-1, n_vertices, 3), faces)
         return out if out.ndim == 3 else out[:, 0]  # the silhouette
 
     def match_area(self, z: np.ndarray, rounds: int = 2) -> np.ndarray:

@@ -1,12 +1,11 @@
 """Differentiable silhouettes with Mitsuba 3 (DESIGN.md, "Silhouette rendering").
 
 The mesh is an area emitter of radiance 1 and there is no other light, so the rendered
-image is the mask (pixel coverage). With ``highlight`` (a face subset, a building's windows) the
-mesh is split in two emitters, (1, 0, 0) and (1, 1, 0): red is the silhouette and green the
-visible part of the subset (its mask), both edges of meshes, so both differentiate. The groups
-may also be given as face lists with one vertex block each (a generator with shared positions
-keeps every face in both groups and moves each group's other vertices to a point, so one scene
-serves every topology). ``direct_projective`` with ``sppi = 0`` differentiates
+image is the mask (pixel coverage). With two face groups (the second a building's windows) the
+mesh is two emitters, (1, 0, 0) and (1, 1, 0): red is the silhouette and green the visible part
+of the second group (its mask), both edges of meshes, so both differentiate. Each group may have
+its own vertex block (a generator with shared positions keeps every face in both groups and moves
+each group's other vertices to a point, so one scene serves every topology). ``direct_projective`` with ``sppi = 0`` differentiates
 the visibility discontinuities at silhouette edges. Vertex positions come from a JAX
 function wrapped with ``drjit.wrap``, so gradients reach generator and pose parameters
 without hand-written chain rules.
@@ -63,24 +62,15 @@ class SilhouetteRenderer:
             self._scenes[key] = (scene, mi.traverse(scene), names)
         return self._scenes[key]
 
-    @staticmethod
-    def _groups(faces, highlight: np.ndarray | None) -> list[np.ndarray]:
-        """Face groups: ``faces`` as a list of groups, or one array split by ``highlight``."""
-        if isinstance(faces, (list, tuple)):
-            return [np.asarray(f) for f in faces]
-        faces = np.asarray(faces)
-        return [faces] if highlight is None else [faces[~highlight], faces[highlight]]
-
-    def render(self, vertices: np.ndarray, faces, seed: int = 0, highlight: np.ndarray | None = None) -> np.ndarray:
+    def render(self, vertices: np.ndarray, faces, seed: int = 0) -> np.ndarray:
         """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With two face groups
-        (``faces`` a list of two, vertices (V, 3) shared or (2, V, 3) one set per group; or one
-        array split by ``highlight``, a bool per face), (n, 2, height, width): the silhouette and
-        the mask of the second group where visible."""
+        (``faces`` a list of two; vertices (V, 3) shared or (2, V, 3) one set per group),
+        (n, 2, height, width): the silhouette and the mask of the second group where visible."""
         import mitsuba as mi
 
-        groups = self._groups(faces, highlight)
+        groups = _face_groups(faces)
         vertices = np.asarray(vertices, np.float32)
-        blocks = list(vertices) if vertices.ndim == 3 else [vertices] * len(groups)
+        blocks = list(vertices) if len(vertices) == len(groups) and vertices.ndim == 3 else [vertices.reshape(-1, 3)] * len(groups)
         scene, params, names = self._scene(groups, len(blocks[0]))
         for name, block in zip(("object", "highlight"), blocks):
             if name in names:
@@ -92,8 +82,7 @@ class SilhouetteRenderer:
         return out[..., 0] if len(groups) == 1 else np.moveaxis(out, -1, 1)
 
     def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces, n_vertices: int,
-                      targets: np.ndarray, seed: int = 0, highlight: np.ndarray | None = None,
-                      highlight_targets: np.ndarray | None = None,
+                      targets: np.ndarray, seed: int = 0, highlight_targets: np.ndarray | None = None,
                       highlight_weight: float = 0.0, highlight_levels: int = 1) -> tuple[float, np.ndarray]:
         """Mean over views of the pixel MSE between rendered and target masks (plus
         ``highlight_weight`` times that of the second face group's masks, averaged over
@@ -101,7 +90,7 @@ class SilhouetteRenderer:
 
         ``vertex_fn`` is a pure JAX function z (m,) -> flattened world vertices: (3 V,) shared by
         the face groups, or (G * 3 V,) one block per group (``n_vertices`` = V). ``faces``: one
-        array (split by ``highlight``, a bool per face, when given) or a list of groups.
+        array, or a list of face groups (the second one's mask is the highlight).
         """
         import drjit as dr
         import mitsuba as mi
@@ -110,7 +99,7 @@ class SilhouetteRenderer:
         if wrapped is None:
             wrapped = dr.wrap(source="drjit", target="jax")(vertex_fn)
             self._wrapped[vertex_fn] = wrapped
-        groups = self._groups(faces, highlight)
+        groups = _face_groups(faces)
         scene, params, names = self._scene(groups, n_vertices)
         zt = mi.TensorXf(np.asarray(z, np.float32))
         dr.enable_grad(zt)
@@ -118,8 +107,8 @@ class SilhouetteRenderer:
         blocks = dr.width(verts) // (3 * n_vertices)
         for g, name in enumerate(("object", "highlight")[: len(groups)]):
             if name in names:
-                offset = 3 * n_vertices * g if blocks > 1 else 0
-                params[f"{name}.vertex_positions"] = dr.gather(mi.Float, verts, dr.arange(mi.UInt32, 3 * n_vertices) + offset)
+                params[f"{name}.vertex_positions"] = verts if blocks == 1 else dr.gather(
+                    mi.Float, verts, dr.arange(mi.UInt32, 3 * n_vertices) + 3 * n_vertices * g)
         params.update()
         loss = 0.0
         n = len(self.c2w)
@@ -136,6 +125,11 @@ class SilhouetteRenderer:
         return value, np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
 
 
+def _face_groups(faces) -> list[np.ndarray]:
+    """``faces`` as a list of face groups (one array is one group)."""
+    return [np.asarray(f) for f in faces] if isinstance(faces, (list, tuple)) else [np.asarray(faces)]
+
+
 def _pyramid_mse(image, target: np.ndarray, levels: int):
     """Mean over ``levels`` levels of a 2 x 2 mean pyramid of the MSE between ``image`` (a flat
     Dr.Jit array of ``target``'s shape) and ``target``. The coarse levels compare how much of each
@@ -146,9 +140,9 @@ def _pyramid_mse(image, target: np.ndarray, levels: int):
 
     target = np.asarray(target, np.float32)
     h, w = target.shape
-    total = 0.0
+    errors = []
     for level in range(levels):
-        total = total + dr.mean(dr.square(image - mi.Float(target.ravel())), axis=None) / levels
+        errors.append(dr.mean(dr.square(image - mi.Float(target.ravel())), axis=None))
         if level == levels - 1 or min(h, w) < 2:
             break
         h2, w2 = h // 2, w // 2
@@ -159,4 +153,4 @@ def _pyramid_mse(image, target: np.ndarray, levels: int):
                         + dr.gather(mi.Float, image, base + w) + dr.gather(mi.Float, image, base + w + 1))
         target = target[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2).mean((1, 3))
         h, w = h2, w2
-    return total
+    return sum(errors[1:], errors[0]) / len(errors)
