@@ -48,6 +48,9 @@ SAMPLED = (
     ("building_t3", "buildings", 4003, {}, "test"),
     ("building_t4", "buildings", 4004, {}, "test"),
     ("building_d1", "buildings", 5001, {}, "dev"),
+    ("building_d2", "buildings", 5002, {}, "dev"),
+    ("building_d3", "buildings", 5003, {}, "dev"),
+    ("building_d4", "buildings", 5005, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )

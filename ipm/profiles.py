@@ -6,6 +6,10 @@ from dataclasses import dataclass, replace
 from ipm.errors import UserError
 
 
+WINDOW_LOSSES = ("mse", "dice")
+"""Losses of the class-mask term (``ipm.render.silhouette._pyramid_loss``)."""
+
+
 @dataclass(frozen=True)
 class DiffProfile:
     """Settings of the memetic stage and the coarse-to-fine Adam refinement."""
@@ -48,6 +52,12 @@ class DiffProfile:
     each many-valued discrete parameter one value up and down, and the half turn); 0: none."""
     polish_steps: int = 6
     """Adam steps given to each neighbour before it is compared."""
+    count_sweeps: int = 0
+    """Sweeps of the count search after the refinement (``ipm.methods.diff.count_search``: every
+    value of each count the input views show, at the finest level of detail); 0: none. Off: on
+    the dev buildings it has not yet raised the IoU or the exact counts (issue 11's notes)."""
+    count_steps: int = 3
+    """Adam steps given to each count value before it is compared."""
     occam_tolerance: float = 0.03
     """A discrete parameter goes to its simplest value (no handle) if that raises the final loss
     by at most this share: one view cannot tell a handle hidden behind the body from none."""
@@ -59,6 +69,9 @@ class DiffProfile:
     window_levels: int = 4
     """Levels of the 2 x 2 mean pyramid over which the class-mask term is averaged (1: the
     full-resolution MSE alone)."""
+    window_loss: str = "mse"
+    """Loss of the class-mask term on each pyramid level: ``mse`` or ``dice``
+    (``ipm.render.silhouette._pyramid_loss``; ``dice`` wants a weight of about 0.01)."""
     max_tilt: float = 0.0
     """Bound of the two tilt angles (radians). 0 holds the object upright, as the scene convention
     has it (DESIGN.md): from one view a tilt of a few degrees trades against the profile's shape
@@ -85,4 +98,7 @@ def get_profile(name: str, **overrides) -> DiffProfile:
     unknown = sorted(set(overrides) - set(DiffProfile.__dataclass_fields__))
     if unknown:
         raise UserError(f"unknown diff setting(s) {', '.join(unknown)} (known: {', '.join(DiffProfile.__dataclass_fields__)})")
-    return replace(PROFILES[name], **overrides)
+    prof = replace(PROFILES[name], **overrides)
+    if prof.window_loss not in WINDOW_LOSSES:
+        raise UserError(f"unknown window_loss {prof.window_loss!r} (known: {', '.join(WINDOW_LOSSES)})")
+    return prof

@@ -10,7 +10,7 @@ from ipm.cases import ELEVATION_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split,
 from ipm.cases import unit_distance
 from ipm.errors import UserError
 from ipm.generators import GENERATORS, get_generator
-from ipm.metrics.recovery import parameter_recovery, true_parameters
+from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
 from ipm.synth import list_cases, load_case
 
 
@@ -96,6 +96,20 @@ def test_parameter_recovery_of_the_truth_is_exact_and_errors_are_measured():
     worse = parameter_recovery(case, p, 1.0, 1.0)
     assert worse["discrete_match"] == 0.0 and worse["param_err_max"] == pytest.approx(0.1, abs=1e-9)
     assert worse["param_err"] > 0.0
+    assert np.isnan(exact["counts_exact"])  # cups count nothing
+
+
+def test_counts_are_scored_on_the_facades_the_input_view_shows():
+    case = load_case("building_d1")  # the input view sees the front and the left side
+    gen = true_parameters(case)[0]
+    assert seen_counts(gen, case) == ["floors", "windows_front", "windows_left"]
+    assert parameter_recovery(case, _params(case), 1.0, 1.0)["counts_exact"] == 1.0
+    hidden = _params(case)
+    hidden["params"]["windows_back"] += 1
+    assert parameter_recovery(case, hidden, 1.0, 1.0)["counts_exact"] == 1.0
+    seen = _params(case)
+    seen["params"]["windows_left"] -= 1
+    assert parameter_recovery(case, seen, 1.0, 1.0)["counts_exact"] == 0.0
 
 
 def test_parameter_recovery_only_where_it_means_something():

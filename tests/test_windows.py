@@ -8,6 +8,7 @@ import json
 import subprocess
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ipm.errors import UserError
@@ -16,11 +17,11 @@ from ipm.generators import get_generator
 from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
-from ipm.methods.diff import Objective, class_masks, neighbours, polish
+from ipm.methods.diff import Objective, class_masks, count_search, neighbours, polish
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
 from ipm.render.cameras import orbit_camera
-from ipm.render.silhouette import SilhouetteRenderer, _pyramid_mse
+from ipm.render.silhouette import SilhouetteRenderer, _pyramid_loss
 from tests.conftest import synthesized
 from tests.test_generate import VALIDATOR, _glb_json
 
@@ -121,6 +122,8 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
     assert loss_w > loss_f  # the villa's windows are not building_1's
     with pytest.raises(UserError, match="unknown diff setting"):
         get_profile("smoke", window_wieght=1.0)
+    with pytest.raises(UserError, match="unknown window_loss 'l1'"):
+        get_profile("smoke", window_loss="l1")
 
 
 def test_one_scene_serves_every_topology(building_views):
@@ -142,25 +145,57 @@ def test_one_scene_serves_every_topology(building_views):
     own = SilhouetteRenderer(views.c2w, views.fov_x, 48, obj.targets.shape[1], 8)
     loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1], [topo.faces[~highlight], topo.faces[highlight]],
                                    len(topo.uv), obj.targets, seed=3, highlight_targets=obj.class_targets,
-                                   highlight_weight=obj.class_weight, highlight_levels=obj.class_levels)
+                                   highlight_weight=obj.class_weight, highlight_levels=obj.class_levels,
+                                   highlight_loss=obj.class_loss)
     reg, reg_grad = problem.regulariser(zs[-1], obj.reg)
     assert shared_loss == pytest.approx(loss + reg, rel=1e-5)
     np.testing.assert_allclose(shared_grad, grad + reg_grad, rtol=1e-4, atol=1e-7)
 
 
-def test_pyramid_mse_averages_the_levels(mitsuba_cpu):
+def _scalar(value) -> float:
+    return float(np.array(value.array if hasattr(value, "array") else value).ravel()[0])
+
+
+@pytest.mark.parametrize("kind", ["mse", "dice"])
+def test_pyramid_loss_averages_the_levels(mitsuba_cpu, kind):
     import mitsuba as mi
+
+    def term(a, b):
+        if kind == "mse":
+            return np.mean((a - b) ** 2)
+        return 1 - (2 * np.mean(a * b) + 1e-6) / (a.mean() + b.mean() + 1e-6)
 
     rng = np.random.default_rng(0)
     image, target = rng.random((8, 6)), rng.random((8, 6))
     pooled = [image, target]
-    expected = [np.mean((image - target) ** 2)]
+    expected = [term(image, target)]
     for _ in range(2):
         pooled = [a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2).mean((1, 3)) if a.shape[1] % 2 == 0
                   else a[:, :-1].reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2).mean((1, 3)) for a in pooled]
-        expected.append(np.mean((pooled[0] - pooled[1]) ** 2))
-    got = _pyramid_mse(mi.Float(image.astype(np.float32).ravel()), target, 3)
-    assert float(np.array(got.array if hasattr(got, "array") else got).ravel()[0]) == pytest.approx(np.mean(expected), rel=1e-5)
+        expected.append(term(*pooled))
+    got = _pyramid_loss(mi.Float(image.astype(np.float32).ravel()), target, 3, kind)
+    assert _scalar(got) == pytest.approx(np.mean(expected), rel=1e-5)
+
+
+def test_dice_scores_a_missed_window_like_none_and_overlap_better(mitsuba_cpu):
+    """With the MSE a window beside the target's costs twice as much as no window, so a search
+    can hide the windows; the Dice term scores both 1 at full resolution, and a half-overlapping
+    window 0.5."""
+    import mitsuba as mi
+
+    target = np.zeros((16, 16), np.float32)
+    target[4:8, 4:8] = 1.0
+
+    def loss(image, kind):
+        return _scalar(_pyramid_loss(mi.Float(image.ravel()), target, 1, kind))
+
+    none, beside, half = np.zeros_like(target), np.zeros_like(target), np.zeros_like(target)
+    beside[4:8, 10:14] = 1.0
+    half[4:8, 6:10] = 1.0
+    assert loss(beside, "mse") == pytest.approx(2 * loss(none, "mse"))
+    assert loss(none, "dice") == pytest.approx(1.0, abs=1e-4) and loss(beside, "dice") == pytest.approx(1.0, abs=1e-4)
+    assert loss(half, "dice") == pytest.approx(0.5, abs=1e-4) and loss(target, "dice") == pytest.approx(0.0, abs=1e-4)
+    assert _scalar(_pyramid_loss(mi.Float(none.ravel()), none, 2, "dice")) == pytest.approx(0.0)  # nothing to match
 
 
 def test_polish_steps_window_counts_and_turns(variant):
@@ -189,12 +224,67 @@ def test_polish_steps_window_counts_and_turns(variant):
     assert round(polish(problem, objective, z, get_profile("default", polish_sweeps=0))[i] * 8) == 6
 
 
+def test_seen_counts_follow_the_facades_the_camera_faces():
+    gen = get_generator("buildings")
+    front = gen.seen_counts(0.0, [0.0, 0.3, 1.0])
+    assert front == ["floors", "windows_front"]
+    corner = gen.seen_counts(0.0, [1.0, 0.5, 1.0])  # 45 degrees between the front and the right side
+    assert corner == ["floors", "windows_front", "windows_right"]
+    assert gen.seen_counts(np.pi, [0.0, 0.3, 1.0]) == ["floors", "windows_back"]  # turned half way
+    assert gen.seen_counts(np.pi / 2, [1.0, 0.0, 0.0]) == ["floors", "windows_front"]  # front turned to +x
+    both = gen.seen_counts(0.0, [[0.0, 0.3, 1.0], [0.0, 0.3, -1.0]])
+    assert both == ["floors", "windows_front", "windows_back"]
+    assert get_generator("dishes").seen_counts(0.0, [0.0, 0.0, 1.0]) == []
+
+
+def test_a_storey_more_keeps_the_walls_height():
+    gen = get_generator("buildings")
+    ix = gen.spec.index
+    x = gen.presets["townhouse"]
+    walls = x[ix["floors"]] * x[ix["floor_height"]]
+    fewer = gen.change_count(x, "floors", x[ix["floors"]] - 1)
+    assert fewer[ix["floors"]] == x[ix["floors"]] - 1
+    assert fewer[ix["floors"]] * fewer[ix["floor_height"]] == pytest.approx(walls)
+    more = gen.change_count(x, "windows_left", 4)
+    assert more[ix["windows_left"]] == 4 and np.count_nonzero(more != x) == 1
+
+
+def test_count_search_reads_every_value_of_the_seen_counts(variant):
+    """Each seen count jumps to its best value however far (the hill climb steps one value); a
+    facade no camera faces is left as it was."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    x = gen.presets["house"].copy()
+    z = problem.initial_z(gen.spec.to_unit(x), 0.0)
+    ix, n = gen.spec.index, problem.n_shape
+    calls = []
+
+    def objective(v, seed=None):  # lowest at 7 windows on the front, 1 at the back, 4 storeys
+        calls.append(1)
+        xv = gen.spec.from_unit(v[:n])
+        return ((xv[ix["windows_front"]] - 7) ** 2 + (xv[ix["windows_back"]] - 1) ** 2
+                + (xv[ix["floors"]] - 4) ** 2), np.zeros_like(v)
+
+    best = gen.spec.from_unit(count_search(problem, objective, z, np.array([[0.0, 1.0, 5.0]]),
+                                           get_profile("default", count_sweeps=1, count_steps=0))[:n])
+    assert best[ix["windows_front"]] == 7 and best[ix["floors"]] == 4
+    assert best[ix["windows_back"]] == x[ix["windows_back"]]  # the camera looks at the front
+    walls = x[ix["floors"]] * x[ix["floor_height"]]  # kept as far as the floor height's bounds allow
+    assert best[ix["floor_height"]] == pytest.approx(max(walls / 4, gen.spec.lower[ix["floor_height"]]))
+    none = count_search(problem, objective, z, np.array([[0.0, 1.0, 5.0]]), get_profile("default", count_sweeps=0))
+    np.testing.assert_array_equal(none, z)
+
+
 def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_views):
     """Reconstruct (small budget), then ``ipm generate`` from its params.json at every level of
     detail: parts by name, normals, and no error or warning from the Khronos validator."""
     out = tmp_path / "rec"
     info = METHODS["diff"](building_views / "transforms.json", out, generator="buildings", profile="smoke",
-                           seed=0, progress=False, population=4, ga_iterations=2, adam_per_iteration=8)
+                           seed=0, progress=False, population=4, ga_iterations=2, adam_per_iteration=8,
+                           count_sweeps=1, count_steps=1, window_loss="dice", window_weight=0.01)
+    trace = pd.read_csv(out / "trace.csv")
+    assert {"memetic", "polish", "refine", "counts"} <= set(trace["stage"])
+    assert trace.loc[trace["stage"] == "counts", "origin"].str.startswith("floors=").any()
     gen = get_generator("buildings")
     assert info["generator"] == "buildings" and set(info["params"]) == set(gen.spec.names)
     nodes = [n["name"] for n in _glb_json(out / "mesh.glb")["nodes"] if "mesh" in n]

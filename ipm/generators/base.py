@@ -111,6 +111,11 @@ class Mesh:
     """Names of the part labels."""
 
 
+SEEN_COS = float(np.cos(np.radians(75.0)))
+"""A side of an object counts as seen by a view when its outward normal is within 75 degrees of
+the direction to the camera (at grazing angles its windows merge in the image)."""
+
+
 class Generator:
     """Base class: subclasses set ``name``, ``spec``, ``part_names``, ``presets``, ``lods``
     and implement ``topology_key``, ``topology`` and ``positions_fn``."""
@@ -139,6 +144,12 @@ class Generator:
     min_fit_lod: int = 0
     """Lowest level of detail the differentiable path searches at (the first that has the
     ``mask_class`` parts: buildings' windows appear at level 2)."""
+    counts: tuple[str, ...] = ()
+    """Discrete parameters that count what a person checks in a result (storeys, windows per
+    facade): parameter recovery reports whether they came back exactly (``ipm.metrics.recovery``)."""
+    facing: dict[str, tuple[float, float, float]] = {}
+    """Count parameters that shape one side of the object only, with that side's outward normal
+    in the object frame: they are scored only where the input view sees that side."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""
@@ -157,6 +168,26 @@ class Generator:
         """True if the object ``x`` looks the same turned about its vertical axis (a yaw error
         means nothing for it). Default: False."""
         return False
+
+    def seen_counts(self, yaw: float, to_cameras) -> list[str]:
+        """The count parameters (:attr:`counts`) that views from the world directions
+        ``to_cameras`` (k, 3) show of the object turned by ``yaw`` about +y: all but the
+        :attr:`facing` ones whose side faces away from every camera (one view sees at most two
+        facades of a house; the windows on the others cannot be read from it)."""
+        c, s = np.cos(yaw), np.sin(yaw)
+        rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # as ipm.problem and ipm.synth turn objects
+        d = np.atleast_2d(np.asarray(to_cameras, np.float64))
+        d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        return [n for n in self.counts
+                if n not in self.facing or (d @ (rot @ np.asarray(self.facing[n]))).max() > SEEN_COS]
+
+    def change_count(self, x: np.ndarray, name: str, value: float) -> np.ndarray:
+        """``x`` with the count parameter ``name`` set to ``value`` and the continuous parameters
+        tied to it moved so the object keeps its size (a storey more at the same wall height).
+        Default: the value alone."""
+        x = np.array(x, np.float64)
+        x[self.spec.index[name]] = value
+        return x
 
     def topology_key(self, x: np.ndarray) -> tuple:
         """The discrete parameter values that decide the topology."""

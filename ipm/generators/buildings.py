@@ -224,6 +224,8 @@ class Buildings(Generator):
     """Frames and balconies count as wall: a window mask is the glass."""
     mask_class = "window"
     min_fit_lod = 2
+    counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
+    facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}
     presets = {}  # filled below from named edits of the defaults
 
     def topology_key(self, x):
@@ -234,6 +236,16 @@ class Buildings(Generator):
         s["balcony_floors"] = (list(range(1, s["floors"])) if s["balconies"] == 1 else
                                list(range(s["balcony_start"], s["floors"])) if s["balconies"] == 2 else [])
         return s
+
+    def change_count(self, x, name, value):
+        """A storey more or less keeps the walls' height (the floor height takes up the change,
+        within its bounds); other counts change alone."""
+        ix = self.spec.index
+        walls = float(x[ix["floors"]] * x[ix["floor_height"]])
+        x = self.spec.clip(super().change_count(x, name, value))
+        if name == "floors":
+            x[ix["floor_height"]] = walls / x[ix["floors"]]
+        return self.spec.clip(x)
 
     def sample(self, rng):
         """A random plausible building (the sampler of in-family cases), not a preset: footprint

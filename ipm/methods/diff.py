@@ -2,9 +2,11 @@
 
 Loss: mean over views of the pixel MSE between the Mitsuba silhouette and the reference
 mask, plus the generator's smoothness prior; for a generator with a ``mask_class`` (buildings:
-windows) and views with semantic images, plus ``window_weight`` times the MSE between the rendered
-and the reference masks of that class (without semantic images: the silhouette alone). Pose (yaw, tilts, translation, scale) is
-optimised with the shape (``ipm.problem``); the tilts only where the profile allows them.
+windows) and views with semantic images, plus ``window_weight`` times the ``window_loss`` (MSE or Dice)
+between the rendered and the reference masks of that class over a mean pyramid (without semantic
+images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
+(``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
+hill climb (:func:`polish`), coarse-to-fine Adam, count search (:func:`count_search`, optional), Occam step.
 """
 from __future__ import annotations
 
@@ -48,7 +50,7 @@ class Objective:
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
-        self.class_levels = profile.window_levels
+        self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
         self.calls = 0
         self._shared = None  # the shared-positions rendering, built on first use
 
@@ -77,7 +79,8 @@ class Objective:
                                                  seed=self.calls if seed is None else seed,
                                                  highlight_targets=self.class_targets,
                                                  highlight_weight=self.class_weight,
-                                                 highlight_levels=self.class_levels)
+                                                 highlight_levels=self.class_levels,
+                                                 highlight_loss=self.class_loss)
         self.calls += 1
         reg, reg_grad = self.problem.regulariser(z, self.reg)
         return loss + reg, grad + reg_grad
@@ -119,20 +122,24 @@ def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Ge
     return pop
 
 
+def _scorer(objective, seeds: tuple[int, ...]):
+    """Loss of a point averaged over fixed render ``seeds`` (both sides of a comparison alike)."""
+    return lambda x: float(np.mean([objective(x, seed=s)[0] for s in seeds]))
+
+
 def simplify(problem: Problem, objective: Objective, z: np.ndarray, tolerance: float,
              record=lambda name, loss: None) -> np.ndarray:
     """Occam step: set each discrete parameter to its simplest value (``generator.simplest``)
     when that raises the loss by at most ``tolerance`` (relative): a part the views do not
     support (a handle hidden behind the body) is dropped. Both sides use the same render seeds."""
-    spec, seeds = problem.spec, (10_001, 10_002)
+    spec, score = problem.spec, _scorer(objective, (10_001, 10_002))
     for name, value in getattr(problem.generator, "simplest", {}).items():
         i = spec.index[name]
         if spec.from_unit(z[: problem.n_shape])[i] == value:
             continue
         alt = z.copy()
         alt[i] = (value - spec.lower[i]) / (spec.upper[i] - spec.lower[i])
-        loss = np.mean([objective(z, seed=s)[0] for s in seeds])
-        loss_alt = np.mean([objective(alt, seed=s)[0] for s in seeds])
+        loss, loss_alt = score(z), score(alt)
         record(f"{name}={value:g}", loss_alt)
         if loss_alt <= (1.0 + tolerance) * loss:
             z = alt
@@ -161,6 +168,19 @@ def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.
     return out
 
 
+def _tried(problem: Problem, objective, alt: np.ndarray, name: str, steps: int, profile: DiffProfile, score,
+           on_eval, record) -> tuple[np.ndarray, float]:
+    """The best point of ``steps`` Adam steps from ``alt`` (``alt`` itself for none) and its
+    score, recorded as ``name``."""
+    ind = Individual(problem.clip(alt), problem.key(alt), name, lr=profile.lr * 0.4)
+    if steps:
+        adam_steps(ind, steps, objective, problem.clip, profile.reject_ratio, on_eval)
+    cand = ind.z if ind.best_z is None else ind.best_z
+    loss = score(cand)
+    record(name, loss)
+    return cand, loss
+
+
 def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
            on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
     """Discrete hill climbing after the memetic stage: parameter by parameter, try the current
@@ -168,23 +188,52 @@ def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
     that lowers the loss (same render seeds on both sides); up to ``polish_sweeps`` sweeps. The
     memetic stage moves one many-valued gene at a time by chance, so a window count one off on a
     facade would otherwise be left standing."""
-    seeds = (10_003, 10_004)
-
-    def score(x):
-        return float(np.mean([objective(x, seed=s)[0] for s in seeds]))
-
+    score = _scorer(objective, (10_003, 10_004))
     best = score(z)
     for _ in range(profile.polish_sweeps):
         improved = False
         for param in list(neighbours(problem, z)):
             for name, alt in neighbours(problem, z).get(param, []):
-                ind = Individual(alt, problem.key(alt), name, lr=profile.lr * 0.4)
-                adam_steps(ind, profile.polish_steps, objective, problem.clip, profile.reject_ratio, on_eval)
-                loss = score(ind.best_z)
-                record(name, loss)
+                cand, loss = _tried(problem, objective, alt, name, profile.polish_steps, profile, score, on_eval,
+                                    record)
                 if loss < best:
-                    z, best, improved = ind.best_z, loss, True
+                    z, best, improved = cand, loss, True
                     break
+        if not improved:
+            break
+    return z
+
+
+def count_search(problem: Problem, objective, z: np.ndarray, cameras: np.ndarray, profile: DiffProfile,
+                 on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """Read the counts the input views show (``Generator.counts``: storeys, windows on each facade
+    a camera faces: ``Generator.seen_counts`` at the current pose, ``cameras`` (k, 3) the input
+    views' positions): for each, every value of its range (``Generator.change_count``) with
+    ``count_steps`` Adam steps, moving to the best when it lowers the loss (same render seeds on
+    both sides); up to ``count_sweeps`` sweeps. The hill climb of :func:`polish` steps one value at
+    a time at the memetic stage's width, where a window is two pixels wide; this one runs at full
+    width and finest detail (``reconstruct``)."""
+    gen, spec, n = problem.generator, problem.spec, problem.n_shape
+    pose = problem.decode(z)["pose"]
+    names = gen.seen_counts(pose["yaw"], np.asarray(cameras) - np.asarray(pose["translation"]))
+    score = _scorer(objective, (10_005, 10_006))
+    best = score(z)
+    for _ in range(profile.count_sweeps):
+        improved = False
+        for name in names:
+            i, x = spec.index[name], spec.from_unit(z[:n])
+            found = None
+            for value in np.arange(spec.lower[i], spec.upper[i] + 1):
+                if value == x[i]:
+                    continue
+                alt = z.copy()
+                alt[:n] = spec.to_unit(gen.change_count(x, name, value))
+                cand, loss = _tried(problem, objective, alt, f"{name}={value:g}", profile.count_steps, profile,
+                                    score, on_eval, record)
+                if loss < best:
+                    found, best = cand, loss
+            if found is not None:
+                z, improved = found, True
         if not improved:
             break
     return z
@@ -222,6 +271,12 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
         adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
         z = ind.best_z
+    if problem.generator.counts and profile.count_sweeps:
+        state.update(stage="counts", best=np.inf)
+        objective = Objective(problem, views, state["res"], max(problem.generator.lods), profile)
+        z = count_search(problem, objective, z, views.c2w[:, :3, 3], profile, on_eval,
+                         lambda name, loss: rows.append(("counts", state["res"], len(rows), name, loss,
+                                                         min(state["best"], loss), time.perf_counter() - t0)))
     state["stage"] = "simplify"
     z = simplify(problem, objective, z, profile.occam_tolerance,
                  lambda name, loss: rows.append(("simplify", state["res"], len(rows), name, loss,

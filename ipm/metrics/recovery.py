@@ -15,7 +15,18 @@ import math
 
 import numpy as np
 
-RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "yaw_err_deg", "trans_err_rel", "size_err_pct")
+RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "counts_exact", "yaw_err_deg", "trans_err_rel",
+                    "size_err_pct")
+
+
+def seen_counts(gen, case: dict) -> list[str]:
+    """The generator's count parameters that the input view of ``case`` shows
+    (``Generator.seen_counts`` at the true yaw, from the case's camera direction)."""
+    cam = case.get("camera", {})
+    az, el = math.radians(cam.get("azimuth_deg", 0.0)), math.radians(cam.get("elevation_deg", 22.0))
+    # the direction ipm.render.cameras.orbit_camera puts the camera in
+    to_camera = [math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)]
+    return gen.seen_counts(math.radians(case.get("pose", {}).get("yaw_deg", 0.0)), to_camera)
 
 
 def true_parameters(case: dict):
@@ -33,10 +44,11 @@ def true_parameters(case: dict):
 def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float) -> dict:
     """Recovery numbers of ``params`` (a reconstruction's params.json) against ``case`` (its
     ground_truth.json): mean and largest unit-cube error of the continuous parameters, share of
-    discrete parameters recovered exactly, yaw error in degrees (NaN for objects that look the
-    same turned, ``Generator.yaw_symmetric``), translation error over the reference's height, size
-    error in percent (the world heights of reconstruction and reference). Empty for out-of-family
-    cases, baselines and other generators."""
+    discrete parameters recovered exactly, whether every count the input view shows came back
+    exactly (:func:`seen_counts`; NaN for generators without counts), yaw error in degrees (NaN
+    for objects that look the same turned, ``Generator.yaw_symmetric``), translation error over
+    the reference's height, size error in percent (the world heights of reconstruction and
+    reference). Empty for out-of-family cases, baselines and other generators."""
     truth = true_parameters(case)
     if truth is None or not params or params.get("generator") != truth[0].name:
         return {}
@@ -59,6 +71,8 @@ def parameter_recovery(case: dict, params: dict | None, reference_height: float,
         "param_err": float(err.mean()) if err.size else float("nan"),
         "param_err_max": float(err.max()) if err.size else float("nan"),
         "discrete_match": float(np.mean(x_true[disc] == x_rec[disc])) if disc.any() else float("nan"),
+        "counts_exact": float(all(x_true[spec.index[n]] == x_rec[spec.index[n]] for n in seen_counts(gen, case)))
+        if gen.counts else float("nan"),
         "yaw_err_deg": yaw_err,
         "trans_err_rel": float(np.linalg.norm(t_rec - t_true) / max(reference_height, 1e-9)),
         "size_err_pct": float(100.0 * (mesh_height / max(reference_height, 1e-9) - 1.0)),

@@ -83,10 +83,12 @@ class SilhouetteRenderer:
 
     def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces, n_vertices: int,
                       targets: np.ndarray, seed: int = 0, highlight_targets: np.ndarray | None = None,
-                      highlight_weight: float = 0.0, highlight_levels: int = 1) -> tuple[float, np.ndarray]:
+                      highlight_weight: float = 0.0, highlight_levels: int = 1,
+                      highlight_loss: str = "mse") -> tuple[float, np.ndarray]:
         """Mean over views of the pixel MSE between rendered and target masks (plus
-        ``highlight_weight`` times that of the second face group's masks, averaged over
-        ``highlight_levels`` levels of a 2x2 mean pyramid), and d loss / d z.
+        ``highlight_weight`` times the ``highlight_loss`` of the second face group's masks,
+        ``"mse"`` or ``"dice"``, averaged over ``highlight_levels`` levels of a 2x2 mean pyramid:
+        :func:`_pyramid_loss`), and d loss / d z.
 
         ``vertex_fn`` is a pure JAX function z (m,) -> flattened world vertices: (3 V,) shared by
         the face groups, or (G * 3 V,) one block per group (``n_vertices`` = V). ``faces``: one
@@ -117,8 +119,8 @@ class SilhouetteRenderer:
             ref = mi.TensorXf(np.asarray(targets[i], np.float32)[..., None])
             loss = loss + dr.mean(dr.square(img[..., 0:1] - ref), axis=None) / n
             if len(groups) > 1 and highlight_weight > 0:
-                loss = loss + highlight_weight * _pyramid_mse(img[..., 1:2].array, highlight_targets[i],
-                                                              highlight_levels) / n
+                loss = loss + highlight_weight * _pyramid_loss(img[..., 1:2].array, highlight_targets[i],
+                                                               highlight_levels, highlight_loss) / n
         dr.backward(loss)
         grad = np.array(dr.grad(zt), np.float64)
         value = float(np.array(loss.array if hasattr(loss, "array") else loss).ravel()[0])
@@ -130,19 +132,29 @@ def _face_groups(faces) -> list[np.ndarray]:
     return [np.asarray(f) for f in faces] if isinstance(faces, (list, tuple)) else [np.asarray(faces)]
 
 
-def _pyramid_mse(image, target: np.ndarray, levels: int):
-    """Mean over ``levels`` levels of a 2 x 2 mean pyramid of the MSE between ``image`` (a flat
-    Dr.Jit array of ``target``'s shape) and ``target``. The coarse levels compare how much of each
-    region the class covers, so a misplaced window is pulled towards the target's windows instead
-    of being shrunk away (the full-resolution MSE rewards removing windows that do not overlap)."""
+def _pyramid_loss(image, target: np.ndarray, levels: int, kind: str = "mse"):
+    """Mean over ``levels`` levels of a 2 x 2 mean pyramid of a loss between ``image`` (a flat
+    Dr.Jit array of ``target``'s shape) and ``target``: ``"mse"``, or ``"dice"`` (1 - 2 |a b| /
+    (|a| + |b|), 0 where neither has the class). The coarse levels compare how much of each region
+    the class covers, so a misplaced window is pulled towards the target's windows. With the MSE a
+    window that misses costs more than none, so a search can hide the windows (building_d2, dev);
+    the Dice term scores a miss like no window at all, and any overlap better."""
     import drjit as dr
     import mitsuba as mi
+
+    if kind not in ("mse", "dice"):
+        raise ValueError(f"unknown class-mask loss {kind!r} (known: mse, dice)")
+
+    def term(a, b):
+        if kind == "mse":
+            return dr.mean(dr.square(a - b), axis=None)
+        return 1.0 - (2.0 * dr.mean(a * b, axis=None) + 1e-6) / (dr.mean(a, axis=None) + dr.mean(b, axis=None) + 1e-6)
 
     target = np.asarray(target, np.float32)
     h, w = target.shape
     errors = []
     for level in range(levels):
-        errors.append(dr.mean(dr.square(image - mi.Float(target.ravel())), axis=None))
+        errors.append(term(image, mi.Float(target.ravel())))
         if level == levels - 1 or min(h, w) < 2:
             break
         h2, w2 = h // 2, w // 2
