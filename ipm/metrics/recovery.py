@@ -22,10 +22,10 @@ RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "counts_exac
 def seen_counts(gen, case: dict) -> list[str]:
     """The generator's count parameters that the input view of ``case`` shows
     (``Generator.seen_counts`` at the true yaw, from the case's camera direction)."""
+    from ipm.render.cameras import orbit_direction
+
     cam = case.get("camera", {})
-    az, el = math.radians(cam.get("azimuth_deg", 0.0)), math.radians(cam.get("elevation_deg", 22.0))
-    # the direction ipm.render.cameras.orbit_camera puts the camera in
-    to_camera = [math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)]
+    to_camera = orbit_direction(cam.get("azimuth_deg", 0.0), cam.get("elevation_deg", 22.0))
     return gen.seen_counts(math.radians(case.get("pose", {}).get("yaw_deg", 0.0)), to_camera)
 
 

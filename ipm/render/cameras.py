@@ -23,11 +23,16 @@ def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     return m
 
 
-def orbit_camera(center, distance: float, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
-    """A camera on a sphere around ``center`` (azimuth about +y from +z, elevation above y = c_y)."""
+def orbit_direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """Unit vector from an orbit's centre to its camera (azimuth about +y from +z, elevation above
+    the centre's horizontal plane)."""
     az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
-    d = np.array([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])
-    return look_at(np.asarray(center) + distance * d, center)
+    return np.array([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])
+
+
+def orbit_camera(center, distance: float, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """A camera on a sphere around ``center`` (:func:`orbit_direction`)."""
+    return look_at(np.asarray(center) + distance * orbit_direction(azimuth_deg, elevation_deg), center)
 
 
 def mitsuba_to_world(c2w_gl: np.ndarray) -> np.ndarray:
