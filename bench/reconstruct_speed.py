@@ -4,7 +4,7 @@ their 64-view IoU.
 
     .venv/bin/python bench/reconstruct_speed.py [--device cpu|cuda] [--threads 2] [--profile default]
         [--cases cup_1 cup_2 cup_ext] [--out results/bench/reconstruct_speed.json]
-        [--keep DIR] [--no-eval]
+        [--keep DIR] [--no-eval] [--input-res 256]
 
 ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine lacks); ``--keep DIR``
 keeps each case's reference and reconstruction there, for ``ipm evaluate`` on another machine.
@@ -43,6 +43,8 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="one reconstruction per case and seed")
     ap.add_argument("--resolutions", nargs="+", type=int, default=[128, 256, 512])
     ap.add_argument("--iterations", type=int, default=20, help="timed iterations per resolution")
+    ap.add_argument("--input-res", type=int, default=256,
+                    help="width of the synthesized input view (the default DAG's synth res)")
     ap.add_argument("--out", default="results/bench/reconstruct_speed.json")
     ap.add_argument("--keep", help="copy references and reconstructions into this folder")
     ap.add_argument("--no-eval", action="store_true", help="skip the IoU (no open3d needed)")
@@ -64,12 +66,12 @@ def main() -> None:
 
     record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
               "gpu": gpu_name() if args.device == "cuda" else None,
-              "device": args.device, "threads": args.threads, "profile": args.profile,
+              "device": args.device, "threads": args.threads, "profile": args.profile, "input_res": args.input_res,
               "iteration_ms": {}, "reconstructions": {}}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for case in args.cases:
-            synthesize(case, tmp / case, n_views=1, res=512, spp=32, progress=False)
+            synthesize(case, tmp / case, n_views=1, res=args.input_res, spp=32, progress=False)
         generators = {case: json.loads((tmp / case / "ground_truth.json").read_text())["generator"]
                       for case in args.cases}
         views = load_views(tmp / args.cases[0] / "transforms.json")

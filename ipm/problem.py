@@ -200,6 +200,12 @@ class Problem:
         pose = np.array([yaw, 0.0, 0.0, 0.0, 0.0, 0.0, -np.log(self.object_height(u))])
         return self.clip(np.concatenate([u, pose]))
 
+    def to_world(self, z: np.ndarray):
+        """The map of object-frame points (k, 3) to the world at ``z``'s pose (numpy)."""
+        world = self._maps(None)[1]
+        zj = jnp.asarray(z, jnp.float32)
+        return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj), np.float64)
+
     def decode(self, z: np.ndarray) -> dict:
         """Parameters by name and the pose in world terms (for params.json)."""
         n = self.n_shape

@@ -52,6 +52,10 @@ class DiffProfile:
     each many-valued discrete parameter one value up and down, and the half turn); 0: none."""
     polish_steps: int = 6
     """Adam steps given to each neighbour before it is compared."""
+    read_counts: bool = True
+    """Before each refinement stage, set the counts (storeys, windows per facade) to those the
+    input views' class masks show on the facades they face (``ipm.facades``); needs class masks
+    (buildings' window masks) and a ``window_weight`` above 0, else nothing happens."""
     count_sweeps: int = 0
     """Sweeps of the count search after the refinement (``ipm.methods.diff.count_search``: every
     value of each count the input views show, at the finest level of detail); 0: none. Off: on

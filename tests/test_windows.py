@@ -17,7 +17,9 @@ from ipm.generators import get_generator
 from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
-from ipm.methods.diff import Objective, class_masks, count_search, neighbours, polish
+from ipm.facades import count_rows_and_windows, marker_turn, runs
+from ipm.methods.diff import Objective, class_masks, count_search, neighbours, polish, read_counts_into
+from ipm.metrics.recovery import true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
 from ipm.render.cameras import orbit_camera
@@ -273,6 +275,67 @@ def test_count_search_reads_every_value_of_the_seen_counts(variant):
     assert best[ix["floor_height"]] == pytest.approx(max(walls / 4, gen.spec.lower[ix["floor_height"]]))
     none = count_search(problem, objective, z, np.array([[0.0, 1.0, 5.0]]), get_profile("default", count_sweeps=0))
     np.testing.assert_array_equal(none, z)
+
+
+def test_runs_close_gaps_narrower_than_the_least():
+    on = np.array([1, 1, 0, 1, 0, 0, 0, 1, 1, 0], bool)
+    assert runs(on, 2) == [(0, 4), (7, 9)]  # the one-sample gap is closed, the three-sample one not
+    assert runs(on, 1) == [(0, 2), (3, 4), (7, 9)]
+    assert runs(on, 4) == [(0, 9)]
+    assert runs(np.zeros(5, bool), 1) == []
+
+
+def test_storeys_and_windows_are_read_off_a_rectified_mask():
+    """Three storeys of four windows, each window split by a one-sample mullion and the ground
+    floor's wider: (3, 4); a blank facade: (0, 0); a row with a window missing does not outvote."""
+    grid = np.zeros((90, 120))
+    for row, (y0, y1) in enumerate([(5, 20), (35, 50), (65, 80)]):
+        for k in range(4):
+            a0 = 10 + 28 * k - (3 if row == 0 else 0)
+            grid[y0:y1, a0:a0 + 14 + (6 if row == 0 else 0)] = 1.0
+            grid[y0:y1, a0 + 7] = 0.0  # mullion
+    assert count_rows_and_windows(grid, 100.0, 100.0) == (3, 4)
+    assert count_rows_and_windows(np.zeros_like(grid), 100.0, 100.0) == (0, 0)
+    grid[65:80, 94:110] = 0.0  # a window fewer on the top floor
+    assert count_rows_and_windows(grid, 100.0, 100.0) == (3, 4)
+    grid[35:50, 94:110] = 0.0  # ... and on the one below: two rows of three against one of four
+    assert count_rows_and_windows(grid, 100.0, 100.0) == (3, 3)
+
+
+def test_counts_are_read_back_at_the_truths_pose(building_views):
+    """building_1 posed as rendered, with a storey and front windows too many: the counts read off
+    its window mask are the truth's (2 storeys, 3 front windows), the walls keep their height,
+    and without class masks nothing changes; turned half way, its door on the back says so."""
+    case = json.loads((building_views / "ground_truth.json").read_text())
+    gen, truth = true_parameters(case)
+    pose = case["pose"]
+    problem = Problem(gen, np.asarray(pose["translation"]), pose["scale"])
+    ix = gen.spec.index
+    wrong = gen.change_count(gen.change_count(truth, "floors", 3), "windows_front", 6)
+    z = problem.initial_z(gen.spec.to_unit(wrong), np.radians(pose["yaw_deg"]))
+    z[problem.n_shape + 6] = 0.0  # the truth's scale
+    views = load_views(building_views / "transforms.json")
+    read, changes = read_counts_into(problem, views, z)
+    x = gen.spec.from_unit(read[: problem.n_shape])
+    assert sorted(changes) == ["floors=2", "windows_front=3"]
+    assert x[ix["floors"]] == 2 and x[ix["windows_front"]] == 3
+    assert x[ix["floors"]] * x[ix["floor_height"]] == pytest.approx(wrong[ix["floors"]] * wrong[ix["floor_height"]], rel=1e-4)
+    plain = load_views(building_views / "transforms.json", semantics=False)
+    assert read_counts_into(problem, plain, z)[1] == []
+    turned = z.copy()
+    turned[problem.n_shape] += np.pi  # the door now on the facade away from the camera
+    back, changes = read_counts_into(problem, views, turned)
+    assert changes[0] == "yaw+180" and np.cos(back[problem.n_shape] - z[problem.n_shape]) == pytest.approx(1.0)
+    assert marker_turn(gen, truth, problem.to_world(z), views, class_masks(gen, views, "door")[0]) == 0.0
+    # a quarter turn with the footprint's sides swapped covers the same ground: the door on the
+    # estimate's right side asks for the quarter turn back
+    side = problem.clip(np.concatenate([gen.spec.to_unit(gen.quarter_turned(truth)), z[problem.n_shape:]]))
+    side[problem.n_shape] -= np.pi / 2
+    door = class_masks(gen, views, "door")[0]
+    turn = marker_turn(gen, gen.quarter_turned(truth), problem.to_world(side), views, door)
+    assert np.degrees(turn) == pytest.approx(90.0)
+    # no door in the views, though the estimate's door faces the camera: it is turned away
+    assert marker_turn(gen, truth, problem.to_world(z), views, np.zeros_like(door)) == pytest.approx(np.pi)
 
 
 def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_views):

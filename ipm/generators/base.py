@@ -150,6 +150,9 @@ class Generator:
     facing: dict[str, tuple[float, float, float]] = {}
     """Count parameters that shape one side of the object only, with that side's outward normal
     in the object frame: they are scored only where the input view sees that side."""
+    marker: tuple[str, str] | None = None
+    """A semantic class that one facade alone carries, and that facade's count name (buildings:
+    the door, on the front): it tells the object's front from its back (``ipm.facades``)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""
@@ -180,6 +183,23 @@ class Generator:
         d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
         return [n for n in self.counts
                 if n not in self.facing or (d @ (rot @ np.asarray(self.facing[n]))).max() > SEEN_COS]
+
+    def facades(self, x: np.ndarray) -> dict[str, tuple]:
+        """The flat sides of the object ``x`` whose windows a :attr:`facing` count counts, by that
+        count's name: (origin at the side's foot, centred; unit direction along it; outward unit
+        normal; length; height), object frame (``ipm.facades`` reads the counts off a window mask
+        there). Default: none."""
+        return {}
+
+    def marker_extent(self, x: np.ndarray) -> tuple[float, float]:
+        """Width of the :attr:`marker` and how deep it is recessed (object units): seen at an
+        angle, the recess hides part of it. Default: (0, 0), no marker."""
+        return 0.0, 0.0
+
+    def quarter_turned(self, x: np.ndarray) -> np.ndarray:
+        """``x`` with the object's sides traded so that, turned a quarter about +y, it covers
+        what ``x`` covered (for :attr:`marker` turns). Default: ``x`` (a round object)."""
+        return np.array(x, np.float64)
 
     def change_count(self, x: np.ndarray, name: str, value: float) -> np.ndarray:
         """``x`` with the count parameter ``name`` set to ``value`` and the continuous parameters

@@ -224,6 +224,7 @@ class Buildings(Generator):
     """Frames and balconies count as wall: a window mask is the glass."""
     mask_class = "window"
     min_fit_lod = 2
+    marker = ("door", "windows_front")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}
     presets = {}  # filled below from named edits of the defaults
@@ -246,6 +247,31 @@ class Buildings(Generator):
         if name == "floors":
             x[ix["floor_height"]] = walls / x[ix["floors"]]
         return self.spec.clip(x)
+
+    def facades(self, x):
+        """The four walls' outer faces up to the cornice (the facade boxes' planes)."""
+        ix = self.spec.index
+        hx, hz = 0.5 * x[ix["width"]], 0.5 * x[ix["depth"]]
+        top = float(x[ix["floors"]] * x[ix["floor_height"]] + x[ix["ground_extra"]])
+        side = float(x[ix["depth"]] - 2 * x[ix["window_inset"]])
+        spans = {"front": (float(x[ix["width"]]), (0.0, 0.0, hz)), "back": (float(x[ix["width"]]), (0.0, 0.0, -hz)),
+                 "right": (side, (hx, 0.0, 0.0)), "left": (side, (-hx, 0.0, 0.0))}
+        return {f"windows_{f}": (np.array(origin, float), np.array(_FACADES[f][0], float),
+                                 np.array(_FACADES[f][1], float), length, top)
+                for f, (length, origin) in spans.items()}
+
+    def marker_extent(self, x):
+        """The door's width and recess (the window inset)."""
+        ix = self.spec.index
+        return float(x[ix["door_width"]]), float(x[ix["window_inset"]])
+
+    def quarter_turned(self, x):
+        """Width and depth swapped (the footprint turned a quarter covers the same ground); the
+        counts of the sides the input view shows are read again after the turn."""
+        ix = self.spec.index
+        out = np.array(x, np.float64)
+        out[ix["width"]], out[ix["depth"]] = x[ix["depth"]], x[ix["width"]]
+        return self.spec.clip(out)
 
     def sample(self, rng):
         """A random plausible building (the sampler of in-family cases), not a preset: footprint

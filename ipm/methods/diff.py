@@ -6,7 +6,8 @@ windows) and views with semantic images, plus ``window_weight`` times the ``wind
 between the rendered and the reference masks of that class over a mean pyramid (without semantic
 images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
 (``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
-hill climb (:func:`polish`), coarse-to-fine Adam, count search (:func:`count_search`, optional), Occam step.
+hill climb (:func:`polish`), coarse-to-fine Adam with the counts read off the class masks
+before each stage (:func:`read_counts_into`), count search (:func:`count_search`, optional), Occam step.
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from ipm.facades import marker_turn, read_counts
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
@@ -29,10 +31,11 @@ from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
 
 
-def class_masks(generator, views: Views) -> tuple[np.ndarray, int] | None:
-    """The reference masks (n, H, W) of the generator's ``mask_class`` and that class's label, or
-    None when the generator has none or the views have no semantic images that name it."""
-    name = generator.mask_class
+def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.ndarray, int] | None:
+    """The reference masks (n, H, W) of the semantic class ``name`` (default: the generator's
+    ``mask_class``) and that class's label, or None when there is no such class or the views have
+    no semantic images that name it."""
+    name = generator.mask_class if name is None else name
     if name is None or views.semantics is None or name not in (views.semantic_labels or {}):
         return None
     value = int(views.semantic_labels[name])
@@ -239,6 +242,39 @@ def count_search(problem: Problem, objective, z: np.ndarray, cameras: np.ndarray
     return z
 
 
+def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """``z`` turned when the views' marker class says it faces the wrong way
+    (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
+    class masks show set to what they show (:func:`ipm.facades.read_counts` on the facades the
+    views face; a storey more or less keeps the walls' height: ``Generator.change_count``), and
+    the changes made; ``z`` itself when the views have no class masks or the generator no facades."""
+    gen, spec, n = problem.generator, problem.spec, problem.n_shape
+    masks = class_masks(gen, views)
+    if masks is None or not gen.counts:
+        return z, []
+    changes = []
+    marker = class_masks(gen, views, gen.marker[0]) if gen.marker else None
+    turn = 0.0 if marker is None else marker_turn(gen, spec.from_unit(z[:n]), problem.to_world(z), views, marker[0])
+    if turn:
+        z = z.copy()
+        if abs(np.cos(turn)) < 0.5:  # a quarter turn: the footprint's sides trade places
+            z[:n] = spec.to_unit(gen.quarter_turned(spec.from_unit(z[:n])))
+        z[n] += turn
+        z = problem.clip(z)
+        changes.append(f"yaw{np.degrees(turn):+.0f}")
+    x = spec.from_unit(z[:n])
+    pose = problem.decode(z)["pose"]
+    seen = gen.seen_counts(pose["yaw"], views.c2w[:, :3, 3] - np.asarray(pose["translation"]))
+    found = read_counts(gen, x, problem.to_world(z), seen, views, masks[0], views.masks)
+    for name, value in found.items():
+        if value != round(x[spec.index[name]]):
+            x = gen.change_count(x, name, value)
+            changes.append(f"{name}={value}")
+    z = z.copy()
+    z[:n] = spec.to_unit(x)
+    return problem.clip(z), changes
+
+
 def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int = 0,
                 progress: bool = True) -> tuple[np.ndarray, pd.DataFrame]:
     """Best ``z`` for ``views`` and the trace (one row per evaluation)."""
@@ -266,6 +302,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
                lambda name, loss: rows.append(("polish", state["res"], len(rows), name, loss,
                                                min(state["best"], loss), time.perf_counter() - t0)))
     for res, iters in zip(profile.refine_res, profile.refine_iterations):
+        if profile.read_counts and profile.window_weight > 0:
+            z, changes = read_counts_into(problem, views, z)
+            rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0) for c in changes)
         state.update(stage="refine", res=res, best=np.inf)
         objective = Objective(problem, views, res, max(profile.refine_lod, least), profile)
         ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
