@@ -56,12 +56,6 @@ class DiffProfile:
     """Before each refinement stage, set the counts (storeys, windows per facade) to those the
     input views' class masks show on the facades they face (``ipm.facades``); needs class masks
     (buildings' window masks) and a ``window_weight`` above 0, else nothing happens."""
-    count_sweeps: int = 0
-    """Sweeps of the count search after the refinement (``ipm.methods.diff.count_search``: every
-    value of each count the input views show, at the finest level of detail); 0: none. Off: on
-    the dev buildings it has not yet raised the IoU or the exact counts (issue 11's notes)."""
-    count_steps: int = 3
-    """Adam steps given to each count value before it is compared."""
     occam_tolerance: float = 0.03
     """A discrete parameter goes to its simplest value (no handle) if that raises the final loss
     by at most this share: one view cannot tell a handle hidden behind the body from none."""

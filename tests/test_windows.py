@@ -18,7 +18,7 @@ from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
-from ipm.methods.diff import Objective, class_masks, count_search, neighbours, polish, read_counts_into
+from ipm.methods.diff import Objective, class_masks, neighbours, polish, read_counts_into
 from ipm.metrics.recovery import true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -251,32 +251,6 @@ def test_a_storey_more_keeps_the_walls_height():
     assert more[ix["windows_left"]] == 4 and np.count_nonzero(more != x) == 1
 
 
-def test_count_search_reads_every_value_of_the_seen_counts(variant):
-    """Each seen count jumps to its best value however far (the hill climb steps one value); a
-    facade no camera faces is left as it was."""
-    gen = get_generator("buildings")
-    problem = Problem(gen, np.zeros(3), 1.0)
-    x = gen.presets["house"].copy()
-    z = problem.initial_z(gen.spec.to_unit(x), 0.0)
-    ix, n = gen.spec.index, problem.n_shape
-    calls = []
-
-    def objective(v, seed=None):  # lowest at 7 windows on the front, 1 at the back, 4 storeys
-        calls.append(1)
-        xv = gen.spec.from_unit(v[:n])
-        return ((xv[ix["windows_front"]] - 7) ** 2 + (xv[ix["windows_back"]] - 1) ** 2
-                + (xv[ix["floors"]] - 4) ** 2), np.zeros_like(v)
-
-    best = gen.spec.from_unit(count_search(problem, objective, z, np.array([[0.0, 1.0, 5.0]]),
-                                           get_profile("default", count_sweeps=1, count_steps=0))[:n])
-    assert best[ix["windows_front"]] == 7 and best[ix["floors"]] == 4
-    assert best[ix["windows_back"]] == x[ix["windows_back"]]  # the camera looks at the front
-    walls = x[ix["floors"]] * x[ix["floor_height"]]  # kept as far as the floor height's bounds allow
-    assert best[ix["floor_height"]] == pytest.approx(max(walls / 4, gen.spec.lower[ix["floor_height"]]))
-    none = count_search(problem, objective, z, np.array([[0.0, 1.0, 5.0]]), get_profile("default", count_sweeps=0))
-    np.testing.assert_array_equal(none, z)
-
-
 def test_runs_close_gaps_narrower_than_the_least():
     on = np.array([1, 1, 0, 1, 0, 0, 0, 1, 1, 0], bool)
     assert runs(on, 2) == [(0, 4), (7, 9)]  # the one-sample gap is closed, the three-sample one not
@@ -344,10 +318,9 @@ def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_v
     out = tmp_path / "rec"
     info = METHODS["diff"](building_views / "transforms.json", out, generator="buildings", profile="smoke",
                            seed=0, progress=False, population=4, ga_iterations=2, adam_per_iteration=8,
-                           count_sweeps=1, count_steps=1, window_loss="dice", window_weight=0.01)
+                           window_loss="dice", window_weight=0.01)
     trace = pd.read_csv(out / "trace.csv")
-    assert {"memetic", "polish", "refine", "counts"} <= set(trace["stage"])
-    assert trace.loc[trace["stage"] == "counts", "origin"].str.startswith("floors=").any()
+    assert {"memetic", "polish", "refine"} <= set(trace["stage"])
     gen = get_generator("buildings")
     assert info["generator"] == "buildings" and set(info["params"]) == set(gen.spec.names)
     nodes = [n["name"] for n in _glb_json(out / "mesh.glb")["nodes"] if "mesh" in n]

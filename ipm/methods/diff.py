@@ -7,7 +7,7 @@ between the rendered and the reference masks of that class over a mean pyramid (
 images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
 (``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
 hill climb (:func:`polish`), coarse-to-fine Adam with the counts read off the class masks
-before each stage (:func:`read_counts_into`), count search (:func:`count_search`, optional), Occam step.
+before each stage (:func:`read_counts_into`), Occam step.
 """
 from __future__ import annotations
 
@@ -207,41 +207,6 @@ def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
     return z
 
 
-def count_search(problem: Problem, objective, z: np.ndarray, cameras: np.ndarray, profile: DiffProfile,
-                 on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
-    """Read the counts the input views show (``Generator.counts``: storeys, windows on each facade
-    a camera faces: ``Generator.seen_counts`` at the current pose, ``cameras`` (k, 3) the input
-    views' positions): for each, every value of its range (``Generator.change_count``) with
-    ``count_steps`` Adam steps, moving to the best when it lowers the loss (same render seeds on
-    both sides); up to ``count_sweeps`` sweeps. The hill climb of :func:`polish` steps one value at
-    a time at the memetic stage's width, where a window is two pixels wide; this one runs at full
-    width and finest detail (``reconstruct``)."""
-    gen, spec, n = problem.generator, problem.spec, problem.n_shape
-    pose = problem.decode(z)["pose"]
-    names = gen.seen_counts(pose["yaw"], np.asarray(cameras) - np.asarray(pose["translation"]))
-    score = _scorer(objective, (10_005, 10_006))
-    best = score(z)
-    for _ in range(profile.count_sweeps):
-        improved = False
-        for name in names:
-            i, x = spec.index[name], spec.from_unit(z[:n])
-            found = None
-            for value in np.arange(spec.lower[i], spec.upper[i] + 1):
-                if value == x[i]:
-                    continue
-                alt = z.copy()
-                alt[:n] = spec.to_unit(gen.change_count(x, name, value))
-                cand, loss = _tried(problem, objective, alt, f"{name}={value:g}", profile.count_steps, profile,
-                                    score, on_eval, record)
-                if loss < best:
-                    found, best = cand, loss
-            if found is not None:
-                z, improved = found, True
-        if not improved:
-            break
-    return z
-
-
 def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """``z`` turned when the views' marker class says it faces the wrong way
     (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
@@ -310,12 +275,6 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
         adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
         z = ind.best_z
-    if problem.generator.counts and profile.count_sweeps:
-        state.update(stage="counts", best=np.inf)
-        objective = Objective(problem, views, state["res"], max(problem.generator.lods), profile)
-        z = count_search(problem, objective, z, views.c2w[:, :3, 3], profile, on_eval,
-                         lambda name, loss: rows.append(("counts", state["res"], len(rows), name, loss,
-                                                         min(state["best"], loss), time.perf_counter() - t0)))
     state["stage"] = "simplify"
     z = simplify(problem, objective, z, profile.occam_tolerance,
                  lambda name, loss: rows.append(("simplify", state["res"], len(rows), name, loss,
