@@ -42,13 +42,13 @@ def runs(on: np.ndarray, min_gap: int) -> list[tuple[int, int]]:
 
 def rectify(image: np.ndarray, c2w: np.ndarray, fov_x: float, origin, along, length: float, top: float,
             density: float = DENSITY) -> tuple[np.ndarray, float, float]:
-    """Sample ``image`` (H, W) on the world rectangle ``origin + a along + y up`` (``a`` centred
-    over ``length``, ``y`` in [0, ``top``]; ``along`` scaled to world size) at about ``density``
-    samples per image pixel. Returns the grid (rows from the ground up, columns along the facade;
-    NaN outside the image) and the samples per object unit across and up."""
+    """Sample ``image`` (..., H, W) on the world rectangle ``origin + a along + y up`` (``a``
+    centred over ``length``, ``y`` in [0, ``top``]; ``along`` scaled to world size) at about
+    ``density`` samples per image pixel. Returns the grid (..., rows from the ground up, columns
+    along the facade; NaN outside the image) and the samples per object unit across and up."""
     origin, along = np.asarray(origin, float), np.asarray(along, float)
     up = np.array([0.0, np.linalg.norm(along), 0.0])  # the same world scale as along
-    h, w = image.shape
+    h, w = image.shape[-2:]
     corners = project(np.stack([origin - 0.5 * length * along, origin + 0.5 * length * along,
                                 origin - 0.5 * length * along + top * up]), c2w, fov_x, w, h)
     n_a = int(np.clip(density * np.linalg.norm(corners[1] - corners[0]), 8, 4096))
@@ -59,9 +59,9 @@ def rectify(image: np.ndarray, c2w: np.ndarray, fov_x: float, origin, along, len
     px = project(points.reshape(-1, 3), c2w, fov_x, w, h)
     col, row = np.floor(px[:, 0]).astype(int), np.floor(px[:, 1]).astype(int)
     inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    grid = np.full(len(px), np.nan)
-    grid[inside] = image[row[inside], col[inside]]
-    return grid.reshape(n_y, n_a), n_a / length, n_y / top
+    grid = np.full(image.shape[:-2] + (len(px),), np.nan)
+    grid[..., inside] = image[..., row[inside], col[inside]]
+    return grid.reshape(image.shape[:-2] + (n_y, n_a)), n_a / length, n_y / top
 
 
 def count_rows_and_windows(grid: np.ndarray, per_unit_a: float, per_unit_y: float,
@@ -84,11 +84,11 @@ def count_rows_and_windows(grid: np.ndarray, per_unit_a: float, per_unit_y: floa
     return len(rows), int(top)
 
 
-def _facade_frames(generator, x, to_world, views):
-    """Per facade of ``x`` (``generator.facades``): its foot's centre and along direction in the
-    world, the view facing it most squarely, that view's cosine to its normal, length and height."""
+def _facade_frames(sides: dict, to_world, views):
+    """Per facade of ``sides`` (``Generator.facades``): its foot's centre and along direction in
+    the world, the view facing it most squarely, that view's cosine to its normal, length and height."""
     out = {}
-    for name, (origin, along, normal, length, top) in generator.facades(x).items():
+    for name, (origin, along, normal, length, top) in sides.items():
         o = to_world(np.asarray(origin)[None])[0]
         d_along = to_world(np.asarray(origin + along)[None])[0] - o
         d_normal = to_world(np.asarray(origin + normal)[None])[0] - o
@@ -104,10 +104,10 @@ def marker_turn(generator, x, to_world, views, marker_masks: np.ndarray) -> floa
     class (buildings: the door, on the front only) says the estimate ``x`` posed by ``to_world``
     needs: the turn that brings the marker's facade to the seen facade that shows most of the
     marker, or a half turn when the views show no marker anywhere though the estimate's own would
-    show (``MARKER_PIXELS`` wide or more past the reveal that hides it at an angle). From one view the long sides of a house have one
-    silhouette, and a square house four."""
-    frames = _facade_frames(generator, x, to_world, views)
+    show (``MARKER_PIXELS`` wide or more past the reveal that hides it at an angle). From one view
+    the long sides of a house have one silhouette, and a square house four."""
     sides = generator.facades(x)
+    frames = _facade_frames(sides, to_world, views)
     own = generator.marker[1]
     shown = {}
     for name, (o, d_along, best, cos, length, top) in frames.items():
@@ -135,13 +135,13 @@ def read_counts(generator, x: np.ndarray, to_world, seen: list[str], views, clas
     unless that view sees less than ``MIN_INSIDE`` of it inside the silhouette; storeys from the
     facades with windows. Counts not read are left out."""
     found, storeys = {}, []
-    for name, (o, d_along, best, _, length, top) in _facade_frames(generator, x, to_world, views).items():
+    for name, (o, d_along, best, _, length, top) in _facade_frames(generator.facades(x), to_world, views).items():
         if name not in seen:
             continue
-        sil, _, _ = rectify(silhouettes[best], views.c2w[best], views.fov_x, o, d_along, length, top)
+        (sil, grid), per_a, per_y = rectify(np.stack([silhouettes[best], class_masks[best]]), views.c2w[best],
+                                            views.fov_x, o, d_along, length, top)
         if np.mean(np.nan_to_num(sil) > 0.5) < MIN_INSIDE:
             continue
-        grid, per_a, per_y = rectify(class_masks[best], views.c2w[best], views.fov_x, o, d_along, length, top)
         n_rows, n_windows = count_rows_and_windows(grid, per_a, per_y)
         found[name] = n_windows
         if n_windows:

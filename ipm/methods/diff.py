@@ -171,19 +171,6 @@ def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.
     return out
 
 
-def _tried(problem: Problem, objective, alt: np.ndarray, name: str, steps: int, profile: DiffProfile, score,
-           on_eval, record) -> tuple[np.ndarray, float]:
-    """The best point of ``steps`` Adam steps from ``alt`` (``alt`` itself for none) and its
-    score, recorded as ``name``."""
-    ind = Individual(problem.clip(alt), problem.key(alt), name, lr=profile.lr * 0.4)
-    if steps:
-        adam_steps(ind, steps, objective, problem.clip, profile.reject_ratio, on_eval)
-    cand = ind.z if ind.best_z is None else ind.best_z
-    loss = score(cand)
-    record(name, loss)
-    return cand, loss
-
-
 def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
            on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
     """Discrete hill climbing after the memetic stage: parameter by parameter, try the current
@@ -197,8 +184,11 @@ def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
         improved = False
         for param in list(neighbours(problem, z)):
             for name, alt in neighbours(problem, z).get(param, []):
-                cand, loss = _tried(problem, objective, alt, name, profile.polish_steps, profile, score, on_eval,
-                                    record)
+                ind = Individual(alt, problem.key(alt), name, lr=profile.lr * 0.4)
+                adam_steps(ind, profile.polish_steps, objective, problem.clip, profile.reject_ratio, on_eval)
+                cand = ind.z if ind.best_z is None else ind.best_z  # no steps: the neighbour itself
+                loss = score(cand)
+                record(name, loss)
                 if loss < best:
                     z, best, improved = cand, loss, True
                     break
