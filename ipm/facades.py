@@ -103,9 +103,10 @@ def marker_turn(generator, x, to_world, views, marker_masks: np.ndarray) -> floa
     """The turn about +y (radians; 0, a quarter or a half) that the views' ``generator.marker``
     class (buildings: the door, on the front only) says the estimate ``x`` posed by ``to_world``
     needs: the turn that brings the marker's facade to the seen facade that shows most of the
-    marker, or a half turn when the views show no marker anywhere though the estimate's own would
-    show (``MARKER_PIXELS`` wide or more past the reveal that hides it at an angle). From one view
-    the long sides of a house have one silhouette, and a square house four."""
+    marker, or a half turn when the views show no marker anywhere though a typical one (the
+    generator's defaults) on the estimate's facade would show (``MARKER_PIXELS`` wide or more
+    past the reveal that hides it at an angle). From one view the long sides of a house have one
+    silhouette, and a square house four."""
     sides = generator.facades(x)
     frames = _facade_frames(sides, to_world, views)
     own = generator.marker[1]
@@ -119,7 +120,9 @@ def marker_turn(generator, x, to_world, views, marker_masks: np.ndarray) -> floa
         n_to = np.asarray(sides[max(shown, key=shown.get)][2], float)
         return float(np.arctan2(np.cross(n_own, n_to)[1], n_own @ n_to))
     o, d_along, best, cos, _, _ = frames[own]
-    width, recess = generator.marker_extent(x)
+    # no marker pixel anywhere pins the estimate's own marker (the loss shrinks it out of sight),
+    # so the question is whether a typical one (the generator's defaults) would show there
+    width, recess = generator.marker_extent(generator.spec.default)
     ends = project(np.stack([o, o + d_along]), views.c2w[best], views.fov_x, views.width, views.height)
     per_unit = np.linalg.norm(ends[1] - ends[0])  # image pixels per object unit along the facade, foreshortened
     tan = np.sqrt(max(1.0 - cos**2, 0.0)) / max(cos, 1e-6)

@@ -18,7 +18,7 @@ from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
-from ipm.methods.diff import Objective, class_masks, neighbours, polish, read_counts_into
+from ipm.methods.diff import Objective, class_masks, decide, neighbours, polish, read_counts_into
 from ipm.metrics.recovery import true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -226,6 +226,26 @@ def test_polish_steps_window_counts_and_turns(variant):
     assert round(polish(problem, objective, z, get_profile("default", polish_sweeps=0))[i] * 8) == 6
 
 
+def test_decide_tries_every_kind_of_roof():
+    """Every value of a categorical parameter is tried (a flat roof straight to a hip roof, two
+    values away, where polish moves one) and the values are compared under the scoring
+    objective, not the one that steps them; 0 steps: nothing is tried."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    i = gen.spec.index["roof_type"]
+    x = gen.presets["house"].copy()
+    x[i] = 0
+    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
+
+    def lowest_at(value):
+        return lambda v, seed=None: ((v[i] * 2 - value) ** 2, np.zeros_like(v))
+
+    best = decide(problem, z, get_profile("default", decide_steps=2), lowest_at(1), lowest_at(2))
+    assert round(best[i] * 2) == 2
+    np.testing.assert_array_equal(np.delete(best, i), np.delete(z, i))  # no gradient: nothing else moved
+    assert round(decide(problem, z, get_profile("default", decide_steps=0), lowest_at(1), lowest_at(2))[i] * 2) == 0
+
+
 def test_seen_counts_follow_the_facades_the_camera_faces():
     gen = get_generator("buildings")
     front = gen.seen_counts(0.0, [0.0, 0.3, 1.0])
@@ -310,6 +330,13 @@ def test_counts_are_read_back_at_the_truths_pose(building_views):
     assert np.degrees(turn) == pytest.approx(90.0)
     # no door in the views, though the estimate's door faces the camera: it is turned away
     assert marker_turn(gen, truth, problem.to_world(z), views, np.zeros_like(door)) == pytest.approx(np.pi)
+    # nor does a door the loss shrank out of sight (narrowest, deepest reveal, seen at 50 degrees)
+    # hide the front: the question is whether a typical door would show there
+    hidden = truth.copy()
+    hidden[ix["door_width"]], hidden[ix["window_inset"]] = gen.spec.lower[ix["door_width"]], gen.spec.upper[ix["window_inset"]]
+    aside = problem.initial_z(gen.spec.to_unit(hidden), np.radians(pose["yaw_deg"] + 30.0))
+    aside[problem.n_shape + 6] = 0.0
+    assert marker_turn(gen, hidden, problem.to_world(aside), views, np.zeros_like(door)) == pytest.approx(np.pi)
 
 
 def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_views):

@@ -150,6 +150,11 @@ class Generator:
     facing: dict[str, tuple[float, float, float]] = {}
     """Count parameters that shape one side of the object only, with that side's outward normal
     in the object frame: they are scored only where the input view sees that side."""
+    categorical: tuple[str, ...] = ()
+    """Discrete parameters whose values are kinds, not amounts (buildings: the roof type): with a
+    profile's ``decide_steps`` above 0 the differentiable path tries every value of each before
+    the last refinement stage (:func:`ipm.methods.diff.decide`): one kind's basin is not next to
+    another's."""
     marker: tuple[str, str] | None = None
     """A semantic class that one facade alone carries, and that facade's count name (buildings:
     the door, on the front): it tells the object's front from its back (``ipm.facades``)."""

@@ -225,6 +225,7 @@ class Buildings(Generator):
     mask_class = "window"
     min_fit_lod = 2
     marker = ("door", "windows_front")
+    categorical = ("roof_type",)
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}
     presets = {}  # filled below from named edits of the defaults

@@ -7,7 +7,8 @@ between the rendered and the reference masks of that class over a mean pyramid (
 images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
 (``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
 hill climb (:func:`polish`), coarse-to-fine Adam with the counts read off the class masks
-before each stage (:func:`read_counts_into`), Occam step.
+before each stage (:func:`read_counts_into`) and, optionally, every kind of a categorical part
+(a roof) tried before the last (:func:`decide`), Occam step.
 """
 from __future__ import annotations
 
@@ -197,6 +198,34 @@ def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
     return z
 
 
+def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objective, score_objective,
+           on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """Every value of each categorical parameter (``Generator.categorical``: a roof's type) given
+    ``decide_steps`` Adam steps under ``steps_objective`` from ``z``, the current value too (none
+    is favoured by a longer refinement), and compared under ``score_objective`` (same render
+    seeds): the lowest wins. Polish's few steps at the memetic resolution cannot carry a flat roof
+    to a hip roof's basin (its walls and slope must move together)."""
+    spec, n, gen = problem.spec, problem.n_shape, problem.generator
+    score = _scorer(score_objective, (10_005, 10_006))
+    for name in gen.categorical:
+        i = spec.index[name]
+        if profile.decide_steps <= 0 or not gen.active(spec.from_unit(z[:n]))[i]:
+            continue
+        best, best_loss = z, np.inf
+        for k in range(int(spec.levels[i])):
+            alt = z.copy()
+            alt[i] = k / (spec.levels[i] - 1)
+            ind = Individual(alt, problem.key(alt), f"{name}={spec.lower[i] + k:g}", lr=profile.lr * 0.4)
+            adam_steps(ind, profile.decide_steps, steps_objective, problem.clip, profile.reject_ratio, on_eval)
+            cand = ind.z if ind.best_z is None else ind.best_z
+            loss = score(cand)
+            record(ind.origin, loss)
+            if loss < best_loss:
+                best, best_loss = cand, loss
+        z = best
+    return z
+
+
 def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """``z`` turned when the views' marker class says it faces the wrong way
     (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
@@ -235,7 +264,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     """Best ``z`` for ``views`` and the trace (one row per evaluation)."""
     rng = np.random.default_rng(seed)
     total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
-             * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res))
+             * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
+             + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
+             * profile.decide_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
     state = {"stage": "memetic", "res": profile.memetic_res, "best": np.inf}
@@ -256,12 +287,17 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     z = polish(problem, objective, best.best_z, profile, on_eval,
                lambda name, loss: rows.append(("polish", state["res"], len(rows), name, loss,
                                                min(state["best"], loss), time.perf_counter() - t0)))
-    for res, iters in zip(profile.refine_res, profile.refine_iterations):
+    for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
+        previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
+        if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
+            state["stage"] = "decide"
+            z = decide(problem, z, profile, previous, objective, on_eval,
+                       lambda name, loss: rows.append(("decide", res, len(rows), name, loss,
+                                                       min(state["best"], loss), time.perf_counter() - t0)))
         if profile.read_counts and profile.window_weight > 0:
             z, changes = read_counts_into(problem, views, z)
             rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0) for c in changes)
         state.update(stage="refine", res=res, best=np.inf)
-        objective = Objective(problem, views, res, max(profile.refine_lod, least), profile)
         ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
         adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
         z = ind.best_z
