@@ -89,3 +89,58 @@ def test_mesh_loading_errors(tmp_path):
     (tmp_path / "bad.ply").write_text("ply\ngarbage")
     with pytest.raises(UserError):
         load_mesh(tmp_path / "bad.ply")
+
+
+def _camera_file(tmp_path, **camera):
+    """A one-view file with ``camera``'s fields at the top level (w/h only where given)."""
+    Image.fromarray(_mask(w=40, h=30).astype(np.uint8)).save(tmp_path / "m.png")
+    frame = {"file_path": "m.png", "mask_path": "m.png", "transform_matrix": np.eye(4).tolist()}
+    (tmp_path / "transforms.json").write_text(json.dumps({**camera, "frames": [frame]}))
+    return tmp_path / "transforms.json"
+
+
+def test_nerfstudio_focal_lengths_and_image_sizes_load(tmp_path):
+    """nerfstudio's fl_x/fl_y/cx/cy (top level or per frame) give the field of view; a file without
+    w/h (NeRF-synthetic) takes the size from its first image."""
+    focal = 0.5 * 40 / np.tan(0.35)
+    v = load_views(_camera_file(tmp_path, fl_x=focal, fl_y=focal, cx=20.0, cy=15.0, w=40, h=30,
+                                camera_model="OPENCV", k1=0.0))
+    assert v.fov_x == pytest.approx(0.7) and (v.width, v.height) == (40, 30)
+    v = load_views(_camera_file(tmp_path, camera_angle_x=0.7))
+    assert (v.width, v.height) == (40, 30) and v.masks.shape == (1, 30, 40)
+    data = json.loads((tmp_path / "transforms.json").read_text())
+    data["frames"][0]["fl_x"] = focal  # per frame, as nerfstudio allows
+    del data["camera_angle_x"]
+    (tmp_path / "transforms.json").write_text(json.dumps(data))
+    assert load_views(tmp_path / "transforms.json").fov_x == pytest.approx(0.7)
+
+
+@pytest.mark.parametrize("camera, match", [
+    ({"w": 40, "h": 30}, "field of view is unknown"),
+    ({"fl_x": 30.0, "cx": 26.0, "w": 40, "h": 30}, "off the image centre"),
+    ({"fl_x": 30.0, "k1": -0.1, "w": 40, "h": 30}, "undistort"),
+    ({"fl_x": 30.0, "fl_y": 40.0, "w": 40, "h": 30}, "non-square"),
+    ({"fl_x": 30.0, "camera_model": "OPENCV_FISHEYE", "w": 40, "h": 30}, "not supported"),
+    ({"fl_x": "wide", "w": 40, "h": 30}, "invalid camera field"),
+])
+def test_cameras_we_cannot_render_are_refused(tmp_path, camera, match):
+    with pytest.raises(UserError, match=match) as exc:
+        load_views(_camera_file(tmp_path, **camera))
+    assert "\n" not in str(exc.value)
+
+
+def test_written_views_carry_both_focal_forms(tmp_path):
+    """What we write loads here and has the fields nerfstudio's parser reads (fl_x, fl_y, cx, cy,
+    w, h) beside instant-ngp's camera_angle_x, agreeing with each other."""
+    from ipm.io import write_views
+
+    Image.fromarray(_mask(w=40, h=30).astype(np.uint8)).save(tmp_path / "m.png")
+    write_views(tmp_path / "transforms.json", 0.7, 40, 30,
+                [{"file_path": "m.png", "mask_path": "m.png", "transform_matrix": np.eye(4)}])
+    data = json.loads((tmp_path / "transforms.json").read_text())
+    assert {"fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x"} <= set(data)
+    assert 2 * np.arctan(0.5 * data["w"] / data["fl_x"]) == pytest.approx(data["camera_angle_x"])
+    assert (data["cx"], data["cy"]) == (20.0, 15.0)
+    del data["camera_angle_x"]
+    (tmp_path / "transforms.json").write_text(json.dumps(data))
+    assert load_views(tmp_path / "transforms.json").fov_x == pytest.approx(0.7)

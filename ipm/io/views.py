@@ -82,6 +82,75 @@ def _read_mask(path: Path, width: int, height: int) -> np.ndarray:
     return mask
 
 
+DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+"""Lens distortion coefficients of the nerfstudio / instant-ngp formats (none may be non-zero)."""
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
+
+
+def _shared(path: Path, data: dict, frames: list, key: str):
+    """``key``'s value, per frame or at the top level (a frame's own wins), one for all frames:
+    the views share one camera; None where no frame has it."""
+    values = {json.dumps(fr.get(key, data.get(key)) if isinstance(fr, dict) else data.get(key)) for fr in frames}
+    if len(values) > 1:
+        raise UserError(f"{path}: frames differ in {key!r}; all views must share one camera")
+    return json.loads(values.pop())
+
+
+def _image_size(path: Path, frames: list) -> tuple[int, int]:
+    """Width and height of the first frame's image (``file_path``, else ``mask_path``), for files
+    that leave ``w``/``h`` out (NeRF-synthetic)."""
+    first = frames[0] if isinstance(frames[0], dict) else {}
+    for key in ("file_path", "mask_path"):
+        if key in first:
+            image = path.parent / str(first[key])
+            if not image.is_file() and not image.suffix:
+                image = image.with_suffix(".png")  # NeRF-synthetic paths leave the extension out
+            try:
+                with Image.open(image) as img:
+                    return img.size
+            except (OSError, ValueError):
+                raise UserError(f"{path}: no w/h given and cannot read the image {image} for its size") from None
+    raise UserError(f"{path}: no w/h given and frame 0 names no image to read the size from")
+
+
+def _intrinsics(path: Path, data: dict, frames: list) -> tuple[float, int, int]:
+    """Horizontal field of view (radians), width and height from ``camera_angle_x`` or ``fl_x``
+    (nerfstudio, instant-ngp; top level or per frame); ``w``/``h`` from the image when absent.
+    Cameras this code cannot render (off-centre principal point, distortion, non-square pixels,
+    other models) are refused, not silently approximated."""
+    get = lambda key: _shared(path, data, frames, key)  # noqa: E731
+    try:
+        w, h = get("w"), get("h")
+        width, height = (int(w), int(h)) if w is not None and h is not None else _image_size(path, frames)
+        angle, fl_x, fl_y = get("camera_angle_x"), get("fl_x"), get("fl_y")
+        if angle is not None:
+            fov_x = float(angle)
+        elif fl_x is not None:
+            fov_x = 2.0 * float(np.arctan(0.5 * width / float(fl_x)))
+        else:
+            raise UserError(f"{path}: no camera_angle_x or fl_x: the field of view is unknown")
+        if fl_y is not None and fl_x is not None and abs(float(fl_y) / float(fl_x) - 1.0) > 0.01:
+            raise UserError(f"{path}: fl_x {fl_x} and fl_y {fl_y} differ (non-square pixels are not supported)")
+        for key, centre in (("cx", 0.5 * width), ("cy", 0.5 * height)):
+            value = get(key)
+            if value is not None and abs(float(value) - centre) > 1.0:
+                raise UserError(f"{path}: {key} {value} is off the image centre {centre:g} "
+                                "(crop the images to centre the principal point)")
+        bent = [key for key in DISTORTION if float(get(key) or 0.0) != 0.0]
+        if bent:
+            raise UserError(f"{path}: lens distortion ({', '.join(bent)}) is not supported; undistort the images first")
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"{path}: invalid camera field: {exc}") from None
+    model = get("camera_model")
+    if model is not None and model not in PINHOLE_MODELS:
+        raise UserError(f"{path}: camera_model {model!r} is not supported (known: {', '.join(PINHOLE_MODELS)})")
+    if not np.isfinite(fov_x) or not 0.0 < fov_x < np.pi:
+        raise UserError(f"{path}: camera_angle_x must be in (0, pi), got {fov_x}")
+    if width < 8 or height < 8:
+        raise UserError(f"{path}: image size {width}x{height} is too small")
+    return fov_x, width, height
+
+
 def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = True) -> Views:
     """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input.
 
@@ -99,17 +168,12 @@ def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = Tr
     if not isinstance(data, dict):
         raise UserError(f"{path}: top level must be an object")
     try:
-        fov_x = float(data["camera_angle_x"])
-        width, height = int(data["w"]), int(data["h"])
         frames = list(data["frames"])
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: missing or invalid field {exc}") from None
-    if not np.isfinite(fov_x) or not 0.0 < fov_x < np.pi:
-        raise UserError(f"{path}: camera_angle_x must be in (0, pi), got {fov_x}")
-    if width < 8 or height < 8:
-        raise UserError(f"{path}: image size {width}x{height} is too small")
     if not frames:
         raise UserError(f"{path}: no frames")
+    fov_x, width, height = _intrinsics(path, data, frames)
     c2w = []
     for i, fr in enumerate(frames):
         try:
@@ -167,8 +231,12 @@ def save_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
 
 def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,
                 frames: list[dict], semantic_labels: dict | None = None) -> None:
-    """Write a transforms.json; ``frames`` hold paths and (4, 4) ``transform_matrix`` arrays."""
-    data = {"camera_angle_x": float(fov_x), "w": int(width), "h": int(height)}
+    """Write a transforms.json; ``frames`` hold paths and (4, 4) ``transform_matrix`` arrays.
+    The camera in both focal forms: ``camera_angle_x`` (instant-ngp, NeRF-synthetic) and
+    ``fl_x``/``fl_y``/``cx``/``cy`` (nerfstudio's parser needs ``fl_x``)."""
+    focal = 0.5 * width / np.tan(0.5 * fov_x)
+    data = {"camera_angle_x": float(fov_x), "w": int(width), "h": int(height), "fl_x": float(focal),
+            "fl_y": float(focal), "cx": 0.5 * width, "cy": 0.5 * height, "camera_model": "PINHOLE"}
     if semantic_labels:
         data["semantic_labels"] = semantic_labels
     data["frames"] = [
