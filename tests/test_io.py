@@ -144,3 +144,23 @@ def test_written_views_carry_both_focal_forms(tmp_path):
     del data["camera_angle_x"]
     (tmp_path / "transforms.json").write_text(json.dumps(data))
     assert load_views(tmp_path / "transforms.json").fov_x == pytest.approx(0.7)
+
+
+def test_masks_come_from_the_alpha_channel_when_no_mask_path(tmp_path):
+    """A frame without mask_path takes its mask from its image's alpha channel (the file_path
+    named without its extension, as NeRF-synthetic does); an image without one is refused."""
+    rgba = np.zeros((30, 40, 4), np.uint8)
+    rgba[..., :3] = 200  # a grey photo: the colour says nothing, the alpha says where the object is
+    rgba[..., 3] = _mask(w=40, h=30)
+    Image.fromarray(rgba).save(tmp_path / "r_0.png")
+    frame = {"file_path": "r_0", "transform_matrix": np.eye(4).tolist()}
+    (tmp_path / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": [frame]}))
+    v = load_views(tmp_path / "transforms.json")
+    np.testing.assert_array_equal(v.masks[0], _mask(w=40, h=30) > 127)
+    Image.fromarray(rgba[..., :3]).save(tmp_path / "r_0.png")
+    with pytest.raises(UserError, match="no alpha channel"):
+        load_views(tmp_path / "transforms.json")
+    frame.pop("file_path")
+    (tmp_path / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "w": 40, "h": 30, "frames": [frame]}))
+    with pytest.raises(UserError, match="no mask_path"):
+        load_views(tmp_path / "transforms.json")

@@ -60,14 +60,19 @@ class Views:
                      [self.frames[i] for i in idx], self.root, self.semantic_labels, semantics)
 
 
-def _read_mask(path: Path, width: int, height: int) -> np.ndarray:
+def _read_mask(path: Path, width: int, height: int, alpha: bool = False) -> np.ndarray:
+    """The object mask in ``path``; with ``alpha``, the alpha channel of an RGBA (or LA) image."""
     if not path.is_file():
         raise UserError(f"mask file not found: {path}")
     try:
         img = np.asarray(Image.open(path))
     except Exception as exc:
         raise UserError(f"cannot read mask {path}: {exc}") from None
-    if img.ndim == 3:
+    if alpha:
+        if img.ndim != 3 or img.shape[2] not in (2, 4):
+            raise UserError(f"{path} has no alpha channel to take the mask from (and its frame has no mask_path)")
+        img = img[..., -1]
+    elif img.ndim == 3:
         img = img[..., 0] if img.shape[2] < 4 else img[..., 3] if img[..., :3].max() == 0 else img[..., 0]
     if img.shape != (height, width):
         raise UserError(
@@ -96,15 +101,20 @@ def _shared(path: Path, data: dict, frames: list, key: str):
     return json.loads(values.pop())
 
 
+def _frame_image(path: Path, name) -> Path:
+    """A frame's image path, relative to the views file; ``.png`` added where the name has no
+    extension and no such file exists (NeRF-synthetic leaves it out)."""
+    image = path.parent / str(name)
+    return image.with_suffix(".png") if not image.is_file() and not image.suffix else image
+
+
 def _image_size(path: Path, frames: list) -> tuple[int, int]:
     """Width and height of the first frame's image (``file_path``, else ``mask_path``), for files
     that leave ``w``/``h`` out (NeRF-synthetic)."""
     first = frames[0] if isinstance(frames[0], dict) else {}
     for key in ("file_path", "mask_path"):
         if key in first:
-            image = path.parent / str(first[key])
-            if not image.is_file() and not image.suffix:
-                image = image.with_suffix(".png")  # NeRF-synthetic paths leave the extension out
+            image = _frame_image(path, first[key])
             try:
                 with Image.open(image) as img:
                     return img.size
@@ -191,9 +201,12 @@ def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = Tr
     if masks:
         mask_list = []
         for i, fr in enumerate(frames):
-            if "mask_path" not in fr:
-                raise UserError(f"{path}: frame {i} has no mask_path")
-            mask_list.append(_read_mask(path.parent / fr["mask_path"], width, height))
+            if "mask_path" in fr:
+                mask_list.append(_read_mask(path.parent / fr["mask_path"], width, height))
+            elif "file_path" in fr:  # the mask in the image's alpha channel (NeRF-synthetic, nerfstudio)
+                mask_list.append(_read_mask(_frame_image(path, fr["file_path"]), width, height, alpha=True))
+            else:
+                raise UserError(f"{path}: frame {i} has no mask_path (nor a file_path with an alpha channel)")
         mask_arr = np.stack(mask_list)
     sem_arr = None
     labelled = [i for i, fr in enumerate(frames) if isinstance(fr, dict) and "semantic_path" in fr]
