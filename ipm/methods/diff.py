@@ -172,6 +172,18 @@ def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.
     return out
 
 
+def _tried(problem: Problem, objective, alt: np.ndarray, name: str, steps: int, profile: DiffProfile, score,
+           on_eval, record) -> tuple[np.ndarray, float]:
+    """The best point of ``steps`` Adam steps under ``objective`` from ``alt`` (``alt`` itself for
+    none) and its ``score``, recorded as ``name``: how polish and decide try a candidate."""
+    ind = Individual(alt, problem.key(alt), name, lr=profile.lr * 0.4)
+    adam_steps(ind, steps, objective, problem.clip, profile.reject_ratio, on_eval)
+    cand = ind.z if ind.best_z is None else ind.best_z
+    loss = score(cand)
+    record(name, loss)
+    return cand, loss
+
+
 def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
            on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
     """Discrete hill climbing after the memetic stage: parameter by parameter, try the current
@@ -185,11 +197,8 @@ def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
         improved = False
         for param in list(neighbours(problem, z)):
             for name, alt in neighbours(problem, z).get(param, []):
-                ind = Individual(alt, problem.key(alt), name, lr=profile.lr * 0.4)
-                adam_steps(ind, profile.polish_steps, objective, problem.clip, profile.reject_ratio, on_eval)
-                cand = ind.z if ind.best_z is None else ind.best_z  # no steps: the neighbour itself
-                loss = score(cand)
-                record(name, loss)
+                cand, loss = _tried(problem, objective, alt, name, profile.polish_steps, profile, score, on_eval,
+                                    record)
                 if loss < best:
                     z, best, improved = cand, loss, True
                     break
@@ -215,11 +224,8 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
         for k in range(int(spec.levels[i])):
             alt = z.copy()
             alt[i] = k / (spec.levels[i] - 1)
-            ind = Individual(alt, problem.key(alt), f"{name}={spec.lower[i] + k:g}", lr=profile.lr * 0.4)
-            adam_steps(ind, profile.decide_steps, steps_objective, problem.clip, profile.reject_ratio, on_eval)
-            cand = ind.z if ind.best_z is None else ind.best_z
-            loss = score(cand)
-            record(ind.origin, loss)
+            cand, loss = _tried(problem, steps_objective, alt, f"{name}={spec.lower[i] + k:g}", profile.decide_steps,
+                                profile, score, on_eval, record)
             if loss < best_loss:
                 best, best_loss = cand, loss
         z = best
@@ -278,22 +284,23 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         bar.update(1)
         bar.set_postfix(stage=state["stage"], res=state["res"], best=f"{state['best']:.5f}")
 
+    def recorder(stage: str, res: int):
+        """A trace row per candidate a stage scores by name (polish, decide, simplify)."""
+        return lambda name, loss: rows.append((stage, res, len(rows), name, loss, min(state["best"], loss),
+                                               time.perf_counter() - t0))
+
     levels, least = problem.spec.levels, problem.generator.min_fit_lod
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
                    prepare=objective.match_area)
     state["stage"] = "polish"
-    z = polish(problem, objective, best.best_z, profile, on_eval,
-               lambda name, loss: rows.append(("polish", state["res"], len(rows), name, loss,
-                                               min(state["best"], loss), time.perf_counter() - t0)))
+    z = polish(problem, objective, best.best_z, profile, on_eval, recorder("polish", state["res"]))
     for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
-            z = decide(problem, z, profile, previous, objective, on_eval,
-                       lambda name, loss: rows.append(("decide", res, len(rows), name, loss,
-                                                       min(state["best"], loss), time.perf_counter() - t0)))
+            z = decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res))
         if profile.read_counts and profile.window_weight > 0:
             z, changes = read_counts_into(problem, views, z)
             rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0) for c in changes)
@@ -302,9 +309,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
         z = ind.best_z
     state["stage"] = "simplify"
-    z = simplify(problem, objective, z, profile.occam_tolerance,
-                 lambda name, loss: rows.append(("simplify", state["res"], len(rows), name, loss,
-                                                 min(state["best"], loss), time.perf_counter() - t0)))
+    z = simplify(problem, objective, z, profile.occam_tolerance, recorder("simplify", state["res"]))
     bar.close()
     trace = pd.DataFrame(rows, columns=["stage", "res", "eval", "origin", "loss", "best", "seconds"])
     return z, trace
