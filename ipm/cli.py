@@ -11,6 +11,13 @@ import os
 import sys
 
 
+def _views(args):
+    """The input views of ``reconstruct`` / ``baseline`` (``ipm.capture.open_views``)."""
+    from ipm.capture import open_views
+
+    return open_views(args.views, args.up, args.colmap, args.images, args.masks)
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="ipm", description="3D reconstruction by inverse procedural modeling")
     sub = p.add_subparsers(dest="command", required=True)
@@ -25,7 +32,7 @@ def _parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("reconstruct", help="fit a procedural generator to masks")
     r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")
-    r.add_argument("--views", required=True, help="transforms.json with masks")
+    r.add_argument("--views", default=None, help="transforms.json with masks")
     r.add_argument("--out", required=True, help="output directory")
     r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam) or ga (tree-structured GA)")
     r.add_argument("--n-input-views", type=int, default=None,
@@ -44,7 +51,7 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("baseline", help="run a baseline (diffsdf, visual_hull, colmap_known, colmap_sfm)")
     b.add_argument("name", help="registered baseline name")
-    b.add_argument("--views", required=True, help="transforms.json (masks; textured RGB for COLMAP)")
+    b.add_argument("--views", default=None, help="transforms.json (masks; textured RGB for COLMAP)")
     b.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json, info.json)")
     b.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
@@ -74,6 +81,13 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--out", required=True, help="output mesh (.glb: parts, materials, normals, parameters; .ply)")
     g.add_argument("--world", action="store_true", help="apply the reconstruction's pose (default: upright at the origin)")
 
+    for sp in (r, b):
+        sp.add_argument("--up", default=None,
+                        help="the input world's up axis (x, y, z, -x, -y, -z), or auto (the cameras' mean up; the ground at the masks' "
+                             "lowest common point); default y for --views (the convention), auto for --colmap")
+        sp.add_argument("--colmap", default=None, help="a COLMAP sparse model folder instead of --views (pinhole camera)")
+        sp.add_argument("--images", default=None, help="with --colmap: the photos' folder")
+        sp.add_argument("--masks", default=None, help="with --colmap: one mask per photo (NAME.png or STEM.png)")
     for sp in (r, pr, b):
         sp.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
         sp.add_argument("--seed", type=int, default=0, help="random seed")
@@ -120,8 +134,9 @@ def _run(args) -> int:
             if not lo <= value <= hi:  # also false for NaN
                 raise UserError(f"{flag}: needs {lo:g} to {hi:g}{unit}, got {value}")
             extra[name] = value
+        views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
-        info = method(args.views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
+        info = method(views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views, **extra)
         print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
     elif args.command == "prepare":
@@ -143,8 +158,9 @@ def _run(args) -> int:
         method = METHODS[args.name]
         if method.uses_generator:
             raise UserError(f"{args.name!r} is not a baseline: use ipm reconstruct --method {args.name}")
+        views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
-        info = method(args.views, args.out, profile=args.profile, seed=args.seed, progress=not args.quiet,
+        info = method(views, args.out, profile=args.profile, seed=args.seed, progress=not args.quiet,
                       n_input_views=args.n_input_views)
         if info.get("failed"):
             print(f"{args.out}: no mesh: {info['failed']}")

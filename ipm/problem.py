@@ -24,7 +24,7 @@ POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
 POSE_LOWER = np.array([-np.inf, 0.0, 0.0, -1.5, 0.0, -1.5, -2.5])
 POSE_UPPER = np.array([np.inf, 0.0, 0.0, 1.5, 0.0, 1.5, 2.5])
 """Pose bounds; the tilts' bounds are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0: the
-object stands on y = 0 (DESIGN.md). This prior is what resolves most of the single-view ambiguity
+object stands on y = 0 (DESIGN.md; ``Problem(free_height=)`` where the ground was estimated). This prior is what resolves most of the single-view ambiguity
 between distance along the ray and scale: with the base free to float 3 % of the height, a
 workflow run ended 3 cm below the ground and 7 cm off along the ray (cup_1 IoU 0.83)."""
 
@@ -82,10 +82,13 @@ def _rotation(yaw, tx, tz):
 class Problem:
     """Generator + pose anchor; builds the pure JAX map z -> world vertices per topology.
 
-    ``max_tilt`` bounds both tilt angles (radians); 0 holds the object upright.
+    ``max_tilt`` bounds both tilt angles (radians); 0 holds the object upright. ``free_height``
+    lets the object's foot leave y = 0 (by up to its height): for views whose ground was
+    estimated, not given (``Views.ground_known``); only where several views fix the depth.
     """
 
-    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.0):
+    def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.0,
+                 free_height: bool = False):
         self.generator = generator
         self.spec = generator.spec
         self.n_shape = len(self.spec)
@@ -96,6 +99,9 @@ class Problem:
         self.upper = np.concatenate([np.ones(self.n_shape), POSE_UPPER])
         tilts = self.n_shape + np.array([POSE_NAMES.index("tilt_x"), POSE_NAMES.index("tilt_z")])
         self.lower[tilts], self.upper[tilts] = -max_tilt, max_tilt
+        if free_height:
+            dy = self.n_shape + POSE_NAMES.index("dy")
+            self.lower[dy], self.upper[dy] = -1.0, 1.0
         groups = getattr(generator, "smooth_groups", ())
         self._smooth = [(np.arange(a, b), w, np.diff(np.eye(b - a), order, axis=0)) for a, b, w, order in groups]
 

@@ -47,6 +47,10 @@ class DiffProfile:
     output_lod: int = 1
     """Generator level of detail of the written mesh (level 2's 128-gon pole fans have 2.8 degree
     angles, which the malformed-triangle metric would count)."""
+    refine_candidates: int = 1
+    """Finalists of the memetic stage (distinct topologies or yaws, best first:
+    ``ipm.methods.diff.finalists``) polished and taken through the first refinement stage each;
+    the one with the lowest loss there goes on."""
     polish_sweeps: int = 2
     """Sweeps of the discrete hill climbing after the memetic stage (``ipm.methods.diff.polish``:
     each many-valued discrete parameter one value up and down, and the half turn); 0: none."""

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from baselines.common import extract_surface, grid_points, input_views, object_box, write_failure
+from baselines.common import extract_surface, input_views, write_failure
+from ipm.hull import grid_points, object_box
 from ipm.errors import UserError
 from ipm.io import load_mesh
 from ipm.methods import METHODS, row_label

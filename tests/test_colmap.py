@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from baselines.colmap.geometry import (apply_similarity, camera_centre, colmap_to_gl, gl_to_colmap,
-                                       robust_umeyama, umeyama)
+from baselines.colmap.geometry import apply_similarity, camera_centre, robust_umeyama, umeyama
 from ipm.errors import UserError
-from ipm.render.cameras import look_at, project
+from ipm.render.cameras import colmap_to_gl, gl_to_colmap, look_at, project
 
 
 def _random_cameras(rng, n=8):

@@ -58,7 +58,9 @@ def test_memetic_finds_the_minimum_of_a_mixed_problem(rng):
     prof = get_profile("default", population=8, ga_iterations=6, adam_per_iteration=80)
     init = [Individual(clip(np.concatenate([[k], rng.random(2), [rng.random() * 6]])), (k,), "r", lr=0.05)
             for k in (0, 0, 0, 0, 1, 0, 0, 0)]
-    best = memetic(init, evaluate, clip, key_of, 3, np.array([2, 0, 0]), prof, rng)
+    final = memetic(init, evaluate, clip, key_of, 3, np.array([2, 0, 0]), prof, rng)
+    best = final[0]
+    assert [i.best_loss for i in final] == sorted(i.best_loss for i in final)
     assert best.key == (1,) and best.best_loss < 1e-3
     np.testing.assert_allclose(best.best_z[1:3], target[1], atol=0.03)
 

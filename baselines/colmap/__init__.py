@@ -35,7 +35,8 @@ from baselines.colmap.geometry import apply_similarity, robust_umeyama
 from baselines.colmap.meshing import MeshingError, oriented_normals, poisson_mesh
 from baselines.colmap.pipeline import (extract, incremental_sfm, make_workspace, match,
                                        points_and_observers, quiet_colmap, triangulate_known)
-from baselines.common import input_views, object_box, write_failure, write_result
+from baselines.common import input_views, write_failure, write_result
+from ipm.hull import object_box
 from ipm.errors import UserError
 from ipm.methods import method
 

@@ -1,39 +1,8 @@
-"""Frame conventions and the similarity alignment, in plain NumPy (no COLMAP needed).
-
-transforms.json stores OpenGL camera-to-world matrices (camera looks down -z, +y up in the
-image, +x right). COLMAP stores world-to-camera poses ``cam_from_world`` in a camera frame
-with +x right, +y down and +z forward: the same camera with its y and z axes flipped.
-"""
+"""Camera centres and the similarity alignment, in plain NumPy (no COLMAP needed); the frame
+conversions are ``ipm.render.cameras.gl_to_colmap`` / ``colmap_to_gl``."""
 from __future__ import annotations
 
 import numpy as np
-
-_FLIP_YZ = np.diag([1.0, -1.0, -1.0])
-
-
-def gl_to_colmap(c2w_gl: np.ndarray) -> np.ndarray:
-    """COLMAP ``cam_from_world`` (3, 4) of an OpenGL camera-to-world matrix (4, 4).
-
-    The rotation is re-orthonormalised (SVD), so a matrix with rounding noise or a uniform
-    scale still gives a valid rigid pose.
-    """
-    c2w_gl = np.asarray(c2w_gl, np.float64)
-    u, _, vt = np.linalg.svd(c2w_gl[:3, :3])
-    r_c2w = (u @ vt) @ _FLIP_YZ  # columns: camera x, y (down), z (forward) in world
-    eye = c2w_gl[:3, 3]
-    r = r_c2w.T
-    return np.concatenate([r, (-r @ eye)[:, None]], 1)
-
-
-def colmap_to_gl(cam_from_world: np.ndarray) -> np.ndarray:
-    """OpenGL camera-to-world matrix (4, 4) of a COLMAP ``cam_from_world`` pose (3, 4)."""
-    m = np.asarray(cam_from_world, np.float64)
-    r, t = m[:3, :3], m[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = r.T @ _FLIP_YZ
-    out[:3, 3] = -r.T @ t
-    return out
-
 
 def camera_centre(cam_from_world: np.ndarray) -> np.ndarray:
     """World position of a COLMAP camera, -R^T t."""

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.colmap.geometry import gl_to_colmap
 from ipm.errors import UserError
 from ipm.io.views import Views
+from ipm.render.cameras import gl_to_colmap
 
 
 @dataclass

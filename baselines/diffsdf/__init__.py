@@ -28,7 +28,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from tqdm import tqdm
 
-from baselines.common import extract_surface, input_views, object_box, write_result
+from baselines.common import extract_surface, input_views, write_result
+from ipm.hull import object_box
 from baselines.diffsdf import field as fieldlib
 from baselines.diffsdf.render import pixel_rays
 from ipm.errors import UserError

@@ -10,7 +10,8 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from baselines.common import extract_surface, grid_points, input_views, mask_values, object_box, write_result
+from baselines.common import extract_surface, input_views, write_result
+from ipm.hull import grid_points, mask_values, object_box
 from ipm.errors import UserError
 from ipm.methods import method
 

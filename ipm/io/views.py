@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,9 +40,21 @@ class Views:
     semantics: np.ndarray | None = None
     """Semantic label images (``semantic_path``), shape (n, height, width), uint8; None when the
     frames have none (or they were not loaded)."""
+    world_from_input: np.ndarray = field(default_factory=lambda: np.eye(4))
+    """The map (4, 4) from the input's world to this one (``ipm.capture.upright``: a z-up capture
+    turned y-up, its ground moved to y = 0); the identity for files in the convention."""
+    ground_known: bool = True
+    """Whether the object stands on y = 0 by the input's word (the convention), not by an estimate
+    (``ipm.capture.upright``: the masks' lowest common point lies below a base seen from above)."""
 
     def __len__(self) -> int:
         return len(self.c2w)
+
+    def input_frame(self) -> dict:
+        """``{"world_from_input": 4 x 4 list}`` for a params.json when the views were turned into
+        the convention (the mesh is written in the turned world), else nothing."""
+        same = np.allclose(self.world_from_input, np.eye(4))
+        return {} if same else {"world_from_input": np.asarray(self.world_from_input).tolist()}
 
     def first(self, n: int | None, minimum: int = 1) -> "Views":
         """The first ``n`` views (all if None); ``UserError`` unless ``minimum <= n <= len(self)``."""
@@ -56,8 +68,7 @@ class Views:
         idx = list(idx)
         masks = None if self.masks is None else self.masks[idx]
         semantics = None if self.semantics is None else self.semantics[idx]
-        return Views(self.fov_x, self.width, self.height, self.c2w[idx], masks,
-                     [self.frames[i] for i in idx], self.root, self.semantic_labels, semantics)
+        return replace(self, c2w=self.c2w[idx], masks=masks, frames=[self.frames[i] for i in idx], semantics=semantics)
 
 
 def _read_mask(path: Path, width: int, height: int, alpha: bool = False) -> np.ndarray:
@@ -161,13 +172,16 @@ def _intrinsics(path: Path, data: dict, frames: list) -> tuple[float, int, int]:
     return fov_x, width, height
 
 
-def load_views(path: str | os.PathLike, masks: bool = True, semantics: bool = True) -> Views:
+def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: bool = True) -> Views:
     """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input.
+    Views already read (``ipm.capture.open_views``: a COLMAP model, a turned world) pass through.
 
     With ``semantics``, the frames' ``semantic_path`` label images are read too when the frames
     have them (all frames or none; each of the views' size, values 0..2, or up to the largest value
     of the file's ``semantic_labels``; ``ipm.io.semantic``).
     """
+    if isinstance(path, Views):
+        return path
     path = Path(path)
     if not path.is_file():
         raise UserError(f"views file not found: {path}")

@@ -1,7 +1,7 @@
 """Reconstruction methods, registered by name; baselines register here too.
 
-A method is a callable ``(views_path, out_dir, profile=, seed=, progress=, n_input_views=,
-**options) -> dict`` that writes at least ``out_dir/mesh.ply`` (world frame) and
+A method is a callable ``(views, out_dir, profile=, seed=, progress=, n_input_views=,
+**options) -> dict`` (``views``: a ``transforms.json`` path or ``Views`` already read) that writes at least ``out_dir/mesh.ply`` (world frame) and
 ``out_dir/timing.json``, atomically. ``method`` attaches what the pipeline needs to know:
 the table label, the view layout it reads (``ipm.synth.LAYOUTS``), whether it takes a
 procedural generator (and whether that must be differentiable), and an optional per-generator

@@ -232,6 +232,30 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     return z
 
 
+def finalists(problem: Problem, final: list[Individual], k: int) -> list[Individual]:
+    """Up to ``k`` of the memetic stage's last generation (best first) that differ from every one
+    taken before in their topology or by more than a quarter turn in yaw: the basins worth a
+    refinement of their own (the memetic resolution cannot tell a low gable roof from a hip)."""
+    out = []
+    for ind in final:
+        yaw = ind.best_z[problem.n_shape]
+        if all(problem.key(ind.best_z) != problem.key(o.best_z)
+               or abs(np.angle(np.exp(1j * (yaw - o.best_z[problem.n_shape])))) > np.pi / 4 for o in out):
+            out.append(ind)
+        if len(out) == k:
+            break
+    return out
+
+
+def _choose(zs: list[np.ndarray], objective, record) -> np.ndarray:
+    """The point of ``zs`` with the lowest loss under ``objective`` (same render seeds for all)."""
+    score = _scorer(objective, (10_007, 10_008))
+    losses = [score(z) for z in zs]
+    for i, loss in enumerate(losses):
+        record(f"finalist {i}", loss)
+    return zs[int(np.argmin(losses))]
+
+
 def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """``z`` turned when the views' marker class says it faces the wrong way
     (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
@@ -272,7 +296,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
              * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
-             * profile.decide_steps)
+             * profile.decide_steps + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1))
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
     state = {"stage": "memetic", "res": profile.memetic_res, "best": np.inf}
@@ -292,22 +316,28 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     levels, least = problem.spec.levels, problem.generator.min_fit_lod
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
-    best = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
-                   prepare=objective.match_area)
+    final = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
+                    prepare=objective.match_area)
     state["stage"] = "polish"
-    z = polish(problem, objective, best.best_z, profile, on_eval, recorder("polish", state["res"]))
+    zs = [polish(problem, objective, ind.best_z, profile, on_eval, recorder("polish", state["res"]))
+          for ind in finalists(problem, final, profile.refine_candidates)]
     for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
-            z = decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res))
-        if profile.read_counts and profile.window_weight > 0:
-            z, changes = read_counts_into(problem, views, z)
-            rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0) for c in changes)
-        state.update(stage="refine", res=res, best=np.inf)
-        ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
-        adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
-        z = ind.best_z
+            zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res)) for z in zs]
+        refined = []
+        for z in zs:
+            if profile.read_counts and profile.window_weight > 0:
+                z, changes = read_counts_into(problem, views, z)
+                rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0)
+                            for c in changes)
+            state.update(stage="refine", res=res, best=np.inf)
+            ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
+            adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
+            refined.append(ind.best_z)
+        zs = [_choose(refined, objective, recorder("choose", res))] if len(refined) > 1 else refined
+    z = zs[0]
     state["stage"] = "simplify"
     z = simplify(problem, objective, z, profile.occam_tolerance, recorder("simplify", state["res"]))
     bar.close()
@@ -324,14 +354,16 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     gen = get_generator(generator)
     prof = get_profile(profile, **overrides)
     views = load_views(views_path).first(n_input_views)
-    problem = Problem(gen, *estimate_anchor(views), max_tilt=prof.max_tilt)
+    problem = Problem(gen, *estimate_anchor(views), max_tilt=prof.max_tilt,
+                      free_height=not views.ground_known and len(views) > 1)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
     mesh = problem.world_mesh(z, max(prof.output_lod, gen.min_fit_lod))
     if not np.all(np.isfinite(mesh.vertices)):
         raise FloatingPointError("the reconstruction diverged (non-finite vertices)")
     seconds = time.perf_counter() - t0
     info = {**problem.decode(z), "method": "diff", "profile": profile, "seed": seed,
-            "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace), "settings": asdict(prof)}
+            "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace), "settings": asdict(prof),
+            **views.input_frame()}
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
         save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,

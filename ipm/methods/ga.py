@@ -577,7 +577,7 @@ def reconstruct(objective: Objective, settings: GASettings, stats: GeneStatistic
 
 
 @method("ga", "ours (GA, {views})", layout="hemi", uses_generator=True, prepare=collect_generator_statistics)
-def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", profile: str = "default",
+def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "trees", profile: str = "default",
            seed: int = 0, progress: bool = True, n_input_views: int | None = None,
            prepared: str | Path | None = None, ga_settings: dict | None = None, **options) -> dict:
     """``ipm reconstruct --method ga``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json.
@@ -623,7 +623,7 @@ def run_ga(views_path: str | Path, out: str | Path, generator: str = "trees", pr
     info.update({"method": "ga", "profile": profile, "seed": seed, "final_loss": float(loss),
                  "evaluations": int(len(trace)), "loss": "tree" if objective.tree else "silhouette",
                  "statistics": stats_source, "settings": asdict(settings), "options": asdict(opts),
-                 "parts": sorted({gen.part_names[k] for k in np.unique(mesh.labels)})})
+                 "parts": sorted({gen.part_names[k] for k in np.unique(mesh.labels)}), **views.input_frame()})
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
         save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,

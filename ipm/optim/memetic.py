@@ -139,14 +139,14 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
             n_shape: int, levels: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
-            on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z) -> Individual:
-    """Run the memetic stage from ``initial``; the returned individual's ``best_z`` is the answer.
+            on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z) -> list[Individual]:
+    """Run the memetic stage from ``initial``; the last generation, best first (one individual
+    per topology key and yaw bin): the first one's ``best_z`` is the answer.
 
     ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
     rescales it to the targets' silhouette area, as it does for the initial population).
     """
     pop = list(initial)
-    best = None
     for it in range(profile.ga_iterations):
         for ind in pop:
             if ind.grad is None:
@@ -159,8 +159,6 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
         for ind in pop:
             ind.key = key_of(ind.z)
         pop = merge_bins(pop, n_shape, profile.yaw_bins)
-        if best is None or pop[0].best_loss < best.best_loss:
-            best = pop[0]
         if it == profile.ga_iterations - 1:
             break
         keep = max(1, len(pop) - int(np.ceil(profile.remove_share * profile.population)))
@@ -173,4 +171,4 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
             child.z = prepare(child.z)
             child.key = key_of(child.z)
             pop.append(child)
-    return best
+    return pop

@@ -72,3 +72,31 @@ def pixel_ray(px: float, py: float, c2w_gl: np.ndarray, fov_x: float, width: int
     d_cam = np.array([(px - width / 2) / f, -(py - height / 2) / f, -1.0])
     d = c2w_gl[:3, :3] @ d_cam
     return c2w_gl[:3, 3].copy(), d / np.linalg.norm(d)
+
+
+# COLMAP's camera frame: +x right, +y down, +z forward (the OpenGL camera with y and z flipped)
+_FLIP_YZ = np.diag([1.0, -1.0, -1.0])
+
+
+def gl_to_colmap(c2w_gl: np.ndarray) -> np.ndarray:
+    """COLMAP ``cam_from_world`` (3, 4) of an OpenGL camera-to-world matrix (4, 4).
+
+    The rotation is re-orthonormalised (SVD), so a matrix with rounding noise or a uniform
+    scale still gives a valid rigid pose.
+    """
+    c2w_gl = np.asarray(c2w_gl, np.float64)
+    u, _, vt = np.linalg.svd(c2w_gl[:3, :3])
+    r_c2w = (u @ vt) @ _FLIP_YZ  # columns: camera x, y (down), z (forward) in world
+    eye = c2w_gl[:3, 3]
+    r = r_c2w.T
+    return np.concatenate([r, (-r @ eye)[:, None]], 1)
+
+
+def colmap_to_gl(cam_from_world: np.ndarray) -> np.ndarray:
+    """OpenGL camera-to-world matrix (4, 4) of a COLMAP ``cam_from_world`` pose (3, 4)."""
+    m = np.asarray(cam_from_world, np.float64)
+    r, t = m[:3, :3], m[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = r.T @ _FLIP_YZ
+    out[:3, 3] = -r.T @ t
+    return out

@@ -1,0 +1,153 @@
+"""Captures in other frames and formats (``ipm.capture``): a z-up transforms.json and a COLMAP
+sparse model come back in the scene convention (y up, the object's foot at y = 0) and reconstruct."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from ipm.capture import ground_height, open_views, read_colmap, rotation_to_y, upright
+from ipm.errors import UserError
+from ipm.io import load_views
+from ipm.render.cameras import gl_to_colmap
+from tests.conftest import synthesized
+from tests.test_cli import _one_line_error, ipm
+
+Y_TO_Z = np.array([[1.0, 0, 0, 0.3], [0, 0, -1, -0.2], [0, 1, 0, 0.5], [0, 0, 0, 1]])
+"""A z-up world: the convention's y turned to z (a quarter turn about x), then shifted."""
+
+
+@pytest.fixture(scope="module")
+def cup_views(tmp_path_factory, mitsuba_cpu):
+    """cup_1 seen from 6 views at 64 px (the input view and five on the hemisphere)."""
+    return synthesized(tmp_path_factory, "cup_1", n_views=6, res=64, spp=4)
+
+
+def _z_up_file(case, out):
+    """``case``'s transforms.json with every camera moved into the z-up world, masks by absolute path."""
+    data = json.loads((case / "transforms.json").read_text())
+    for fr in data["frames"]:
+        fr["transform_matrix"] = (Y_TO_Z @ np.asarray(fr["transform_matrix"])).tolist()
+        fr["mask_path"] = str(case / fr["mask_path"])
+        fr.pop("semantic_path", None)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "transforms.json").write_text(json.dumps(data))
+    return out / "transforms.json"
+
+
+@pytest.mark.parametrize("up", [(0, 1, 0), (0, -1, 0), (0, 0, 1), (1, 0, 0), (0.3, -0.5, 0.8)])
+def test_rotation_to_y(up):
+    r = rotation_to_y(np.array(up))
+    np.testing.assert_allclose(r @ (np.array(up) / np.linalg.norm(up)), [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("up", ["z", "auto"])
+def test_a_z_up_capture_comes_back_upright(tmp_path, cup_views, up):
+    """The cameras come back turned as they were, shifted as one rigid body; the ground found from
+    the masks lies at or somewhat below the cup's foot (a base seen from above hides what is
+    under it), never above it."""
+    truth = load_views(cup_views / "transforms.json")
+    views = open_views(_z_up_file(cup_views, tmp_path), up=up)
+    assert not views.ground_known and views.masks.shape == truth.masks.shape
+    tol = 1e-9 if up == "z" else 1e-6  # auto: level cameras tell it exactly
+    np.testing.assert_allclose(views.c2w[:, :3, :3], truth.c2w[:, :3, :3], atol=tol)
+    if up == "z":
+        shift = views.c2w[:, :3, 3] - truth.c2w[:, :3, 3]
+        np.testing.assert_allclose(shift, np.broadcast_to(shift[0], shift.shape), atol=1e-9)
+        height = 0.855  # cup_1's height (its reference mesh)
+        assert -0.3 * height < -shift[0, 1] <= 0.02 * height  # the ground in the truth's frame
+        back = views.world_from_input @ Y_TO_Z  # the truth's world to ours: the same shift
+        np.testing.assert_allclose(back[:3, :3], np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(back[:3, 3], shift[0], atol=1e-9)
+    assert upright(truth, "y") is truth and ground_height(truth.first(1)) == 0.0
+
+
+def test_unknown_or_unknowable_up_axis_is_refused(cup_views):
+    with pytest.raises(UserError, match="unknown up axis 'w'"):
+        open_views(cup_views / "transforms.json", up="w")
+    with pytest.raises(UserError, match="cannot tell the world's up axis"):  # one view: its tilt is open
+        upright(load_views(cup_views / "transforms.json").first(1), "auto")
+
+
+def _colmap_model(case, out, model="PINHOLE", params=None, mask_names="colmap"):
+    """``case``'s views as a COLMAP sparse model in a z-up world: out/sparse, out/images, out/masks."""
+    import pycolmap
+
+    views = load_views(case / "transforms.json")
+    f = 0.5 * views.width / np.tan(0.5 * views.fov_x)
+    params = [f, f, views.width / 2, views.height / 2] if params is None else params
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model=model, width=views.width, height=views.height,
+                                                    params=params, camera_id=1))
+    for d in ("sparse", "images", "masks"):
+        (out / d).mkdir(parents=True, exist_ok=True)
+    for i, fr in enumerate(views.frames):
+        name = f"photo_{i:02d}.jpg"
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=1, image_id=i + 1),
+                                         pycolmap.Rigid3d(gl_to_colmap(Y_TO_Z @ views.c2w[i])))
+        shutil.copyfile(case / fr["file_path"], out / "images" / name)
+        mask = f"{name}.png" if mask_names == "colmap" else f"photo_{i:02d}.png"
+        shutil.copyfile(case / fr["mask_path"], out / "masks" / mask)
+    rec.write(str(out / "sparse"))
+    return out
+
+
+@pytest.mark.parametrize("mask_names", ["colmap", "stem"])
+def test_a_colmap_model_reads_like_its_transforms_file(tmp_path, cup_views, mask_names):
+    truth = load_views(cup_views / "transforms.json")
+    m = _colmap_model(cup_views, tmp_path, mask_names=mask_names)
+    views = read_colmap(m / "sparse", m / "images", m / "masks", up="z")
+    assert views.fov_x == pytest.approx(truth.fov_x) and (views.width, views.height) == (truth.width, truth.height)
+    np.testing.assert_allclose(views.c2w[:, :3, :3], truth.c2w[:, :3, :3], atol=1e-9)
+    np.testing.assert_array_equal(views.masks, truth.masks)
+    assert all(fr["file_path"].endswith(f"photo_{i:02d}.jpg") for i, fr in enumerate(views.frames))
+    auto = open_views(colmap=m / "sparse", images=m / "images", masks=m / "masks")  # up: auto for COLMAP
+    np.testing.assert_allclose(auto.c2w[:, :3, :3], truth.c2w[:, :3, :3], atol=1e-6)
+
+
+@pytest.mark.parametrize("problem, match", [
+    ("distorted", "lens distortion"), ("no_mask", "no mask for COLMAP image"), ("no_model", "cannot read the COLMAP"),
+    ("off_centre", "off the image centre"), ("both", "either --views"), ("no_images", "--colmap needs --images")])
+def test_colmap_input_problems_are_clear(tmp_path, cup_views, problem, match):
+    kw = {}
+    if problem == "distorted":
+        kw = dict(model="SIMPLE_RADIAL", params=[80.0, 32.0, 32.0, 0.05])
+    if problem == "off_centre":
+        kw = dict(params=[80.0, 80.0, 40.0, 32.0])
+    m = _colmap_model(cup_views, tmp_path, **kw)
+    if problem == "no_mask":
+        (m / "masks" / "photo_03.jpg.png").unlink()
+    if problem == "no_model":
+        shutil.rmtree(m / "sparse")
+        (m / "sparse").mkdir()
+    args = dict(colmap=m / "sparse", images=m / "images", masks=m / "masks")
+    if problem == "both":
+        args["views"] = cup_views / "transforms.json"
+    if problem == "no_images":
+        args["images"] = None
+    with pytest.raises(UserError, match=match):
+        open_views(**args)
+
+
+def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
+    """Smoke profile through the command line: a z-up transforms.json with --up z and a COLMAP
+    model; the params say how to take the mesh back to the input's world."""
+    m = _colmap_model(cup_views, tmp_path / "colmap")
+    runs = {"z_up": ["--views", str(_z_up_file(cup_views, tmp_path / "zup")), "--up", "z"],
+            "colmap": ["--colmap", str(m / "sparse"), "--images", str(m / "images"), "--masks", str(m / "masks")]}
+    for name, args in runs.items():
+        out = tmp_path / f"out_{name}"
+        res = ipm("reconstruct", "--generator", "dishes", *args, "--out", str(out), "--profile", "smoke",
+                  "--n-input-views", "2", "--quiet", "--threads", "2")
+        assert res.returncode == 0, res.stderr
+        info = json.loads((out / "params.json").read_text())
+        back = np.asarray(info["world_from_input"])
+        np.testing.assert_allclose(back[:3, :3] @ Y_TO_Z[:3, :3], np.eye(3), atol=1e-6)
+        assert (out / "mesh.glb").is_file()
+    res = ipm("reconstruct", "--generator", "dishes", "--colmap", str(m / "sparse"), "--images", str(m / "images"),
+              "--out", str(tmp_path / "bad"), "--profile", "smoke")
+    assert "--colmap needs --images" in _one_line_error(res) and not (tmp_path / "bad").exists()
