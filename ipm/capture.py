@@ -111,15 +111,17 @@ def _mask_file(masks: Path, name: str) -> Path:
                     f"{Path(name).with_suffix('.png')})")
 
 
-def read_colmap(model: str | Path, images: str | Path, masks: str | Path, up: str = "auto") -> Views:
+def read_colmap(model: str | Path, images: str | Path, masks: str | Path | None, up: str = "auto") -> Views:
     """The registered images of a COLMAP sparse model (``cameras``/``images`` .bin or .txt) as
-    views, in name order, with their masks from ``masks``, brought upright (``up``; COLMAP's
-    world has no preferred axis, so ``auto`` by default)."""
+    views, in name order, with their masks from ``masks`` (None: from each photo, its alpha or
+    its colours: ``ipm.segment``), brought upright (``up``; COLMAP's world has no preferred
+    axis, so ``auto`` by default)."""
     import pycolmap
 
-    model, images, masks = Path(model), Path(images), Path(masks)
+    model, images = Path(model), Path(images)
+    masks = None if masks is None else Path(masks)
     for what, folder in (("model", model), ("images", images), ("masks", masks)):
-        if not folder.is_dir():
+        if folder is not None and not folder.is_dir():
             raise UserError(f"COLMAP {what} folder not found: {folder}")
     try:
         rec = pycolmap.Reconstruction(str(model))
@@ -131,25 +133,41 @@ def read_colmap(model: str | Path, images: str | Path, masks: str | Path, up: st
     fov_x, width, height = _colmap_camera(rec.cameras, {img.camera_id for img in posed})
     frames, c2w, mask_arr = [], [], []
     for img in posed:
-        mask = _mask_file(masks, img.name)
-        frames.append({"file_path": str((images / img.name).resolve()), "mask_path": str(mask.resolve())})
+        photo = images / img.name
+        frames.append({"file_path": str(photo.resolve())})
+        if masks is None:
+            mask_arr.append(_read_mask(photo, width, height, alpha=True))
+        else:
+            frames[-1]["mask_path"] = str(_mask_file(masks, img.name).resolve())
+            mask_arr.append(_read_mask(Path(frames[-1]["mask_path"]), width, height))
         c2w.append(colmap_to_gl(img.cam_from_world().matrix()))
-        mask_arr.append(_read_mask(mask, width, height))
     views = Views(fov_x, width, height, np.stack(c2w), np.stack(mask_arr), frames, model)
     return upright(views, up)
 
 
 def open_views(views: str | Path | None = None, up: str | None = None, colmap: str | Path | None = None,
-               images: str | Path | None = None, masks: str | Path | None = None) -> Views:
+               images: str | Path | None = None, masks: str | Path | None = None, image: str | Path | None = None,
+               mask: str | Path | None = None, fov: float | None = None) -> Views:
     """The input of a reconstruction or baseline: a ``transforms.json`` (its world's ``up`` axis,
-    ``y`` by default) or a COLMAP model with its images and masks folders (``auto`` by default);
-    exactly one of the two."""
-    if (views is None) == (colmap is None):
-        raise UserError("give either --views transforms.json or --colmap MODEL (with --images and --masks)")
+    ``y`` by default), a COLMAP model with its images and masks folders (``auto`` by default), or
+    one photo (``image``, its ``mask`` or alpha channel, the ``fov`` in degrees if known) whose
+    camera is estimated (``ipm.photo``); exactly one of the three."""
+    if sum(x is not None for x in (views, colmap, image)) != 1:
+        raise UserError("give one of --views transforms.json, --colmap MODEL (with --images, --masks) "
+                        "or --image PHOTO (with --mask, else its alpha or colours)")
+    if (mask is not None or fov is not None) and image is None:
+        raise UserError("--mask and --fov go with --image (a photo whose camera is unknown)")
+    if image is not None:
+        from ipm.photo import photo_views
+
+        if up is not None:
+            raise UserError("--up does not apply to --image: the camera's pitch and roll are estimated")
+        return photo_views(image, mask, fov)
     if colmap is None:
         if images is not None or masks is not None:
             raise UserError("--images and --masks go with --colmap (a transforms.json names its own files)")
         return upright(load_views(views), up or "y")
-    if images is None or masks is None:
-        raise UserError("--colmap needs --images (the photos' folder) and --masks (one mask per photo)")
+    if images is None:
+        raise UserError("--colmap needs --images (the photos' folder; --masks: one mask per photo, "
+                        "else each photo's alpha or colours)")
     return read_colmap(colmap, images, masks, up or "auto")

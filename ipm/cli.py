@@ -15,7 +15,8 @@ def _views(args):
     """The input views of ``reconstruct`` / ``baseline`` (``ipm.capture.open_views``)."""
     from ipm.capture import open_views
 
-    return open_views(args.views, args.up, args.colmap, args.images, args.masks)
+    return open_views(args.views, args.up, args.colmap, args.images, args.masks, getattr(args, "image", None),
+                      getattr(args, "mask", None), getattr(args, "fov", None))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -33,6 +34,11 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reconstruct", help="fit a procedural generator to masks")
     r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")
     r.add_argument("--views", default=None, help="transforms.json with masks")
+    r.add_argument("--image", default=None, help="instead of --views: one photo whose camera is unknown "
+                   "(pitch, roll and field of view are estimated with the object; diff path)")
+    r.add_argument("--mask", default=None, help="with --image: its mask (255 = object; default: the photo's alpha, "
+                   "else segmented from its colours against a plain background)")
+    r.add_argument("--fov", type=float, default=None, help="with --image: the horizontal field of view in degrees, if known")
     r.add_argument("--out", required=True, help="output directory")
     r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam) or ga (tree-structured GA)")
     r.add_argument("--n-input-views", type=int, default=None,
@@ -87,7 +93,8 @@ def _parser() -> argparse.ArgumentParser:
                              "lowest common point); default y for --views (the convention), auto for --colmap")
         sp.add_argument("--colmap", default=None, help="a COLMAP sparse model folder instead of --views (pinhole camera)")
         sp.add_argument("--images", default=None, help="with --colmap: the photos' folder")
-        sp.add_argument("--masks", default=None, help="with --colmap: one mask per photo (NAME.png or STEM.png)")
+        sp.add_argument("--masks", default=None, help="with --colmap: one mask per photo (NAME.png or STEM.png; default: "
+                        "each photo's alpha, else segmented from its colours)")
     for sp in (r, pr, b):
         sp.add_argument("--profile", default="default", help="budget profile: smoke, default, paper")
         sp.add_argument("--seed", type=int, default=0, help="random seed")

@@ -23,8 +23,9 @@ from ipm.render.cameras import pixel_ray
 POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
 POSE_LOWER = np.array([-np.inf, 0.0, 0.0, -1.5, 0.0, -1.5, -2.5])
 POSE_UPPER = np.array([np.inf, 0.0, 0.0, 1.5, 0.0, 1.5, 2.5])
-"""Pose bounds; the tilts' bounds are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0: the
-object stands on y = 0 (DESIGN.md; ``Problem(free_height=)`` where the ground was estimated). This prior is what resolves most of the single-view ambiguity
+"""Pose bounds; the tilts' bounds are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0:
+the object stands on y = 0 (DESIGN.md; ``Problem(free_height=)`` where the ground was estimated).
+This prior is what resolves most of the single-view ambiguity
 between distance along the ray and scale: with the base free to float 3 % of the height, a
 workflow run ended 3 cm below the ground and 7 cm off along the ray (cup_1 IoU 0.83)."""
 
@@ -88,15 +89,20 @@ class Problem:
     """
 
     def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.0,
-                 free_height: bool = False):
+                 free_height: bool = False, views: Views | None = None):
         self.generator = generator
         self.spec = generator.spec
         self.n_shape = len(self.spec)
-        self.dim = self.n_shape + len(POSE_NAMES)
         self.anchor_t = np.asarray(anchor_t, np.float64)
         self.anchor_s = float(anchor_s)
-        self.lower = np.concatenate([np.zeros(self.n_shape), POSE_LOWER])
-        self.upper = np.concatenate([np.ones(self.n_shape), POSE_UPPER])
+        self.views = views
+        self.camera = None if views is None else views.camera
+        lower, upper = [np.zeros(self.n_shape), POSE_LOWER], [np.ones(self.n_shape), POSE_UPPER]
+        if self.camera is not None:  # camera genes after the pose (``ipm.photo``)
+            lower.append(self.camera.bounds()[0])
+            upper.append(self.camera.bounds()[1])
+        self.lower, self.upper = np.concatenate(lower), np.concatenate(upper)
+        self.dim = len(self.lower)
         tilts = self.n_shape + np.array([POSE_NAMES.index("tilt_x"), POSE_NAMES.index("tilt_z")])
         self.lower[tilts], self.upper[tilts] = -max_tilt, max_tilt
         if free_height:
@@ -104,6 +110,14 @@ class Problem:
             self.lower[dy], self.upper[dy] = -1.0, 1.0
         groups = getattr(generator, "smooth_groups", ())
         self._smooth = [(np.arange(a, b), w, np.diff(np.eye(b - a), order, axis=0)) for a, b, w, order in groups]
+
+    @classmethod
+    def for_views(cls, generator: Generator, views: Views, max_tilt: float = 0.0) -> "Problem":
+        """The problem of fitting ``generator`` to ``views``: the anchor from the first view; the
+        foot free to leave y = 0 where the ground was estimated and several views fix depth; the
+        camera's genes where it is unknown (``Views.camera``)."""
+        return cls(generator, *estimate_anchor(views), max_tilt=max_tilt,
+                   free_height=not views.ground_known and len(views) > 1, views=views)
 
     def key(self, z: np.ndarray) -> tuple:
         """Topology key (discrete parameter values) of ``z``."""
@@ -121,18 +135,19 @@ class Problem:
         return self._vertex_fn(None if self.generator.shared_positions else key, lod)
 
     @lru_cache(maxsize=None)
-    def _vertex_fn(self, key: tuple | None, lod: int):
+    def _vertex_fn(self, key: tuple | None, lod: int, render: bool = True):
         positions = self.generator.positions_fn(key, lod)
-        shape_x, world = self._maps(key)
+        shape_x, world = self._maps(key, render)
 
         def fn(z):
             return world(positions(shape_x(z)), z).ravel()
 
         return jax.jit(fn)
 
-    def _maps(self, key: tuple | None):
+    def _maps(self, key: tuple | None, render: bool = True):
         """``shape_x(z)``: physical parameters (discrete ones from ``key``, or rounded from ``z``
-        when ``key`` is None); ``world(v, z)``: generator-frame vertices (V, 3) to the world."""
+        when ``key`` is None); ``world(v, z)``: generator-frame vertices (V, 3) to the world, and
+        with ``render`` and an unknown camera on to the render camera's frame (``ipm.photo``)."""
         spec, n = self.spec, self.n_shape
         lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
         discrete = jnp.asarray(spec.discrete)
@@ -147,9 +162,13 @@ class Problem:
             x = lo + jnp.clip(z[:n], 0.0, 1.0) * span
             return jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
 
+        camera = self.camera if render else None
+        n_pose = len(POSE_NAMES)
+
         def world(v, z):
             p = z[n:]
-            return s0 * jnp.exp(p[6]) * v @ _rotation(p[0], p[1], p[2]).T + (t0 + s0 * p[3:6])
+            out = s0 * jnp.exp(p[6]) * v @ _rotation(p[0], p[1], p[2]).T + (t0 + s0 * p[3:6])
+            return out if camera is None else camera.to_render(out, p[n_pose:])
 
         return shape_x, world
 
@@ -189,7 +208,8 @@ class Problem:
         """The generated mesh in the world frame (numpy)."""
         key = self.key(z)
         topo = self.generator.topology(key, lod)
-        verts = np.asarray(self.vertex_fn(key, lod)(jnp.asarray(z, jnp.float32)), np.float64).reshape(-1, 3)
+        fn = self._vertex_fn(None if self.generator.shared_positions else key, lod, render=False)
+        verts = np.asarray(fn(jnp.asarray(z, jnp.float32)), np.float64).reshape(-1, 3)
         return build_mesh(verts, topo, self.generator.part_names)
 
     def object_height(self, u: np.ndarray) -> float:
@@ -201,13 +221,25 @@ class Problem:
         v = v[np.unique(self.generator.topology(key, lod).faces)]
         return float(max(v[:, 1].max() - v[:, 1].min(), 1e-3))
 
-    def initial_z(self, u: np.ndarray, yaw: float) -> np.ndarray:
-        """``z`` for unit parameters ``u`` at ``yaw``, scaled so its height matches the anchor."""
+    def initial_z(self, u: np.ndarray, yaw: float, pitch: float | None = None) -> np.ndarray:
+        """``z`` for unit parameters ``u`` at ``yaw``, scaled so its height matches the anchor; with
+        an unknown camera, seen from ``pitch`` (level, the starting field of view), the object
+        placed where that camera's ray through the mask's foot meets the ground."""
         pose = np.array([yaw, 0.0, 0.0, 0.0, 0.0, 0.0, -np.log(self.object_height(u))])
-        return self.clip(np.concatenate([u, pose]))
+        if self.camera is None:
+            return self.clip(np.concatenate([u, pose]))
+        genes = self.camera.start(self.camera.pitch0 if pitch is None else pitch)
+        try:
+            t, s = estimate_anchor(self.camera.views_at(self.views, genes))
+        except UserError:  # this pitch sees the foot above the horizon: the render camera's anchor
+            genes, (t, s) = self.camera.start(self.camera.pitch0), (self.anchor_t, self.anchor_s)
+        pose[3:6] = (t - self.anchor_t) / self.anchor_s
+        pose[6] += np.log(s / self.anchor_s)
+        return self.clip(np.concatenate([u, pose, genes]))
 
     def to_world(self, z: np.ndarray):
-        """The map of object-frame points (k, 3) to the world at ``z``'s pose (numpy)."""
+        """The map of object-frame points (k, 3) to the world at ``z``'s pose (numpy); with an
+        unknown camera, the render camera's world (where ``views.c2w`` sees them)."""
         world = self._maps(None)[1]
         zj = jnp.asarray(z, jnp.float32)
         return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj), np.float64)
@@ -216,7 +248,9 @@ class Problem:
         """Parameters by name and the pose in world terms (for params.json)."""
         n = self.n_shape
         p = z[n:]
+        camera = {} if self.camera is None else {"camera": self.camera.describe(p[len(POSE_NAMES):])}
         return {
+            **camera,
             "generator": self.generator.name,
             "params": self.spec.as_dict(self.spec.from_unit(z[:n])),
             "pose": {

@@ -107,11 +107,14 @@ def test_a_colmap_model_reads_like_its_transforms_file(tmp_path, cup_views, mask
     assert all(fr["file_path"].endswith(f"photo_{i:02d}.jpg") for i, fr in enumerate(views.frames))
     auto = open_views(colmap=m / "sparse", images=m / "images", masks=m / "masks")  # up: auto for COLMAP
     np.testing.assert_allclose(auto.c2w[:, :3, :3], truth.c2w[:, :3, :3], atol=1e-6)
+    segmented = open_views(colmap=m / "sparse", images=m / "images")  # no masks: from the photos' colours
+    iou = (segmented.masks * truth.masks).sum() / np.maximum(segmented.masks, truth.masks).sum()
+    assert iou > 0.9
 
 
 @pytest.mark.parametrize("problem, match", [
     ("distorted", "lens distortion"), ("no_mask", "no mask for COLMAP image"), ("no_model", "cannot read the COLMAP"),
-    ("off_centre", "off the image centre"), ("both", "either --views"), ("no_images", "--colmap needs --images")])
+    ("off_centre", "off the image centre"), ("both", "give one of --views"), ("no_images", "--colmap needs --images")])
 def test_colmap_input_problems_are_clear(tmp_path, cup_views, problem, match):
     kw = {}
     if problem == "distorted":
@@ -148,6 +151,6 @@ def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
         back = np.asarray(info["world_from_input"])
         np.testing.assert_allclose(back[:3, :3] @ Y_TO_Z[:3, :3], np.eye(3), atol=1e-6)
         assert (out / "mesh.glb").is_file()
-    res = ipm("reconstruct", "--generator", "dishes", "--colmap", str(m / "sparse"), "--images", str(m / "images"),
+    res = ipm("reconstruct", "--generator", "dishes", "--colmap", str(m / "sparse"), "--masks", str(m / "masks"),
               "--out", str(tmp_path / "bad"), "--profile", "smoke")
     assert "--colmap needs --images" in _one_line_error(res) and not (tmp_path / "bad").exists()

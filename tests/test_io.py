@@ -148,7 +148,8 @@ def test_written_views_carry_both_focal_forms(tmp_path):
 
 def test_masks_come_from_the_alpha_channel_when_no_mask_path(tmp_path):
     """A frame without mask_path takes its mask from its image's alpha channel (the file_path
-    named without its extension, as NeRF-synthetic does); an image without one is refused."""
+    named without its extension, as NeRF-synthetic does); an image without one is segmented by
+    its colours (``ipm.segment``), and refused when nothing stands out from its border."""
     rgba = np.zeros((30, 40, 4), np.uint8)
     rgba[..., :3] = 200  # a grey photo: the colour says nothing, the alpha says where the object is
     rgba[..., 3] = _mask(w=40, h=30)
@@ -158,8 +159,12 @@ def test_masks_come_from_the_alpha_channel_when_no_mask_path(tmp_path):
     v = load_views(tmp_path / "transforms.json")
     np.testing.assert_array_equal(v.masks[0], _mask(w=40, h=30) > 127)
     Image.fromarray(rgba[..., :3]).save(tmp_path / "r_0.png")
-    with pytest.raises(UserError, match="no alpha channel"):
+    with pytest.raises(UserError, match="no alpha channel, and no object stands out"):
         load_views(tmp_path / "transforms.json")
+    rgba[_mask(w=40, h=30) > 127, :3] = (200, 60, 40)
+    Image.fromarray(rgba[..., :3]).save(tmp_path / "r_0.png")
+    found = load_views(tmp_path / "transforms.json").masks[0] > 0.5
+    assert (found != (_mask(w=40, h=30) > 127)).sum() <= 4  # the speck removal rounds the four corners
     frame.pop("file_path")
     (tmp_path / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "w": 40, "h": 30, "frames": [frame]}))
     with pytest.raises(UserError, match="no mask_path"):

@@ -9,6 +9,7 @@ import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image
@@ -46,6 +47,9 @@ class Views:
     ground_known: bool = True
     """Whether the object stands on y = 0 by the input's word (the convention), not by an estimate
     (``ipm.capture.upright``: the masks' lowest common point lies below a base seen from above)."""
+    camera: Any = None
+    """``ipm.photo.UnknownCamera`` when the (single) view's camera is to be estimated; then ``c2w``
+    and ``fov_x`` are the render camera's, a start, not a measurement."""
 
     def __len__(self) -> int:
         return len(self.c2w)
@@ -72,16 +76,24 @@ class Views:
 
 
 def _read_mask(path: Path, width: int, height: int, alpha: bool = False) -> np.ndarray:
-    """The object mask in ``path``; with ``alpha``, the alpha channel of an RGBA (or LA) image."""
+    """The object mask in ``path``; with ``alpha``, a photo's: its alpha channel (RGBA, LA), else
+    segmented from its colours against the background at its border (``ipm.segment``)."""
     if not path.is_file():
         raise UserError(f"mask file not found: {path}")
     try:
         img = np.asarray(Image.open(path))
     except Exception as exc:
         raise UserError(f"cannot read mask {path}: {exc}") from None
-    if alpha:
+    if alpha and img.ndim == 3 and img.shape[2] == 3:
+        from ipm.segment import mask_from_image
+
+        try:
+            img = (mask_from_image(img) * 255).astype(np.uint8)
+        except UserError as exc:
+            raise UserError(f"{path}: no mask given, no alpha channel, and {exc}") from None
+    elif alpha:
         if img.ndim != 3 or img.shape[2] not in (2, 4):
-            raise UserError(f"{path} has no alpha channel to take the mask from (and its frame has no mask_path)")
+            raise UserError(f"{path} has no alpha channel or colours to take the mask from (and no mask is given)")
         img = img[..., -1]
     elif img.ndim == 3:
         img = img[..., 0] if img.shape[2] < 4 else img[..., 3] if img[..., :3].max() == 0 else img[..., 0]
@@ -134,9 +146,10 @@ def _image_size(path: Path, frames: list) -> tuple[int, int]:
     raise UserError(f"{path}: no w/h given and frame 0 names no image to read the size from")
 
 
-def _intrinsics(path: Path, data: dict, frames: list) -> tuple[float, int, int]:
+def _intrinsics(path: Path, data: dict, frames: list, fov_required: bool = True) -> tuple[float | None, int, int]:
     """Horizontal field of view (radians), width and height from ``camera_angle_x`` or ``fl_x``
-    (nerfstudio, instant-ngp; top level or per frame); ``w``/``h`` from the image when absent.
+    (nerfstudio, instant-ngp; top level or per frame); ``w``/``h`` from the image when absent;
+    the field of view None when neither is given and it is not ``fov_required``.
     Cameras this code cannot render (off-centre principal point, distortion, non-square pixels,
     other models) are refused, not silently approximated."""
     get = lambda key: _shared(path, data, frames, key)  # noqa: E731
@@ -148,6 +161,8 @@ def _intrinsics(path: Path, data: dict, frames: list) -> tuple[float, int, int]:
             fov_x = float(angle)
         elif fl_x is not None:
             fov_x = 2.0 * float(np.arctan(0.5 * width / float(fl_x)))
+        elif not fov_required:
+            fov_x = None
         else:
             raise UserError(f"{path}: no camera_angle_x or fl_x: the field of view is unknown")
         if fl_y is not None and fl_x is not None and abs(float(fl_y) / float(fl_x) - 1.0) > 0.01:
@@ -165,7 +180,7 @@ def _intrinsics(path: Path, data: dict, frames: list) -> tuple[float, int, int]:
     model = get("camera_model")
     if model is not None and model not in PINHOLE_MODELS:
         raise UserError(f"{path}: camera_model {model!r} is not supported (known: {', '.join(PINHOLE_MODELS)})")
-    if not np.isfinite(fov_x) or not 0.0 < fov_x < np.pi:
+    if fov_x is not None and (not np.isfinite(fov_x) or not 0.0 < fov_x < np.pi):
         raise UserError(f"{path}: camera_angle_x must be in (0, pi), got {fov_x}")
     if width < 8 or height < 8:
         raise UserError(f"{path}: image size {width}x{height} is too small")
@@ -175,6 +190,8 @@ def _intrinsics(path: Path, data: dict, frames: list) -> tuple[float, int, int]:
 def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: bool = True) -> Views:
     """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input.
     Views already read (``ipm.capture.open_views``: a COLMAP model, a turned world) pass through.
+    A single frame without ``transform_matrix`` (and perhaps without a field of view) is a photo
+    whose camera the reconstruction estimates (``Views.camera``).
 
     With ``semantics``, the frames' ``semantic_path`` label images are read too when the frames
     have them (all frames or none; each of the views' size, values 0..2, or up to the largest value
@@ -197,9 +214,12 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
         raise UserError(f"{path}: missing or invalid field {exc}") from None
     if not frames:
         raise UserError(f"{path}: no frames")
-    fov_x, width, height = _intrinsics(path, data, frames)
-    c2w = []
-    for i, fr in enumerate(frames):
+    posed = any(isinstance(fr, dict) and "transform_matrix" in fr for fr in frames)
+    fov_x, width, height = _intrinsics(path, data, frames, fov_required=posed)
+    if not posed and len(frames) > 1:
+        raise UserError(f"{path}: no frame has a transform_matrix; an unknown camera needs exactly one view")
+    c2w = [] if posed else [np.eye(4)]
+    for i, fr in enumerate(frames if posed else []):
         try:
             m = np.asarray(fr["transform_matrix"], dtype=np.float64)
         except (KeyError, TypeError, ValueError):
@@ -217,10 +237,10 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
         for i, fr in enumerate(frames):
             if "mask_path" in fr:
                 mask_list.append(_read_mask(path.parent / fr["mask_path"], width, height))
-            elif "file_path" in fr:  # the mask in the image's alpha channel (NeRF-synthetic, nerfstudio)
+            elif "file_path" in fr:  # the image's alpha (NeRF-synthetic, nerfstudio) or its colours
                 mask_list.append(_read_mask(_frame_image(path, fr["file_path"]), width, height, alpha=True))
             else:
-                raise UserError(f"{path}: frame {i} has no mask_path (nor a file_path with an alpha channel)")
+                raise UserError(f"{path}: frame {i} has no mask_path (nor a file_path to take the mask from)")
         mask_arr = np.stack(mask_list)
     sem_arr = None
     labelled = [i for i, fr in enumerate(frames) if isinstance(fr, dict) and "semantic_path" in fr]
@@ -236,8 +256,13 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
         except (TypeError, ValueError):
             raise UserError(f"{path}: semantic_labels must map label names to integers") from None
         sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height, top) for fr in frames])
-    return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
-                 data.get("semantic_labels"), sem_arr)
+    views = Views(fov_x or 1.0, width, height, np.stack(c2w), mask_arr, frames, path.parent,
+                  data.get("semantic_labels"), sem_arr)
+    if not posed:  # a photo without its camera: estimated with the object (``ipm.photo``)
+        from ipm.photo import DEFAULT_FOV, unknown_camera_views
+
+        views = unknown_camera_views(replace(views, fov_x=fov_x or DEFAULT_FOV), fov_known=fov_x is not None)
+    return views
 
 
 def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:

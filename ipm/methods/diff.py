@@ -27,7 +27,8 @@ from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
 from ipm.methods import check_generator, method
 from ipm.optim.memetic import Individual, adam_steps, memetic
-from ipm.problem import POSE_NAMES, Problem, estimate_anchor
+from ipm.photo import PITCH_PRIOR
+from ipm.problem import POSE_NAMES, Problem
 from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
 
@@ -108,11 +109,16 @@ class Objective:
 
 def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Generator,
                        prepare=lambda z: z) -> list[Individual]:
-    """Presets and random samples, spread over yaw bins (the memetic algorithm's start);
-    ``prepare`` adjusts each start (e.g. its scale)."""
+    """Presets and random samples, spread over yaw bins (the memetic algorithm's start) and, for an
+    unknown camera, over pitches (``ipm.photo.PITCH_PRIOR``); ``prepare`` adjusts each start
+    (e.g. its scale)."""
     presets = list(problem.generator.presets.items())
     n_random = int(round(profile.random_share * profile.population))
     bins = rng.permutation(np.resize(np.arange(profile.yaw_bins), max(profile.population, profile.yaw_bins)))
+    pitches = [None] * profile.population
+    if problem.camera is not None:
+        lo, hi = PITCH_PRIOR
+        pitches = lo + (rng.permutation(profile.population) + rng.random(profile.population)) / profile.population * (hi - lo)
     pop = []
     for i in range(profile.population):
         yaw = (bins[i] + rng.random()) / profile.yaw_bins * 2 * np.pi
@@ -121,7 +127,7 @@ def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Ge
             u = problem.spec.to_unit(x)
         else:
             name, u = "random", rng.random(problem.n_shape)
-        z = prepare(problem.initial_z(u, yaw))
+        z = prepare(problem.initial_z(u, yaw, pitches[i]))
         pop.append(Individual(z, problem.key(z), name, lr=profile.lr))
     return pop
 
@@ -354,8 +360,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     gen = get_generator(generator)
     prof = get_profile(profile, **overrides)
     views = load_views(views_path).first(n_input_views)
-    problem = Problem(gen, *estimate_anchor(views), max_tilt=prof.max_tilt,
-                      free_height=not views.ground_known and len(views) > 1)
+    problem = Problem.for_views(gen, views, max_tilt=prof.max_tilt)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
     mesh = problem.world_mesh(z, max(prof.output_lod, gen.min_fit_lod))
     if not np.all(np.isfinite(mesh.vertices)):

@@ -605,6 +605,8 @@ def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "tr
     settings = get_settings(profile, **(ga_settings or {}))
     opts = get_options(profile, **{k: v for k, v in options.items() if k in GAOptions.__dataclass_fields__})
     views = load_views(views_path).first(n_input_views)
+    if views.camera is not None:
+        raise UserError("the view's camera is unknown: the diff path estimates it (--method diff)")
     objective = problem_objective(views, gen, opts)
     t_stats = time.perf_counter()
     if prepared is not None:

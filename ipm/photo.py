@@ -1,0 +1,138 @@
+"""A photo without a camera: its pitch, roll and focal length are estimated with the object.
+
+The paper optimises the camera parameters C with the generator's parameters P. From one view
+only the camera's attitude relative to the ground and its focal length matter: the object's
+position and size along the ray trade against each other anyway (``ipm.problem``). So the
+camera stands at (0, 1, 0), one unit above the ground y = 0, looking along -z, pitched down by
+``pitch`` and rolled by ``roll``; its horizontal field of view is ``fov``.
+
+The renderer keeps one fixed *render camera* (pitch ``pitch0``, no roll, FOV ``fov0``). A world
+point ``p`` seen by the camera ``(pitch, roll, fov)`` lands on the pixel where the render
+camera sees ``E + R0 K R(pitch, roll)^T (p - E)``, ``E`` the camera centre and ``K`` the
+focal ratio on the image axes: a rotation about the centre and a scaling of the camera's x
+and y keep every ray's pixel, so silhouettes are exact and the camera's gradient flows through
+the vertices like the object's.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import jax.numpy as jnp
+import numpy as np
+from PIL import Image
+
+from ipm.errors import UserError
+from ipm.io.views import Views, _read_mask
+
+CAMERA_NAMES = ("pitch", "roll", "log_focal")
+"""Camera genes appended to ``z`` after the pose when the camera is unknown."""
+EYE = np.array([0.0, 1.0, 0.0])
+"""The camera centre: one unit above the ground (the scale is the object's to choose)."""
+PITCH_RANGE = (np.radians(-20.0), np.radians(85.0))
+ROLL_LIMIT = np.radians(20.0)
+FOV_RANGE = (np.radians(15.0), np.radians(100.0))
+PITCH_PRIOR = (0.0, np.radians(60.0))
+"""Pitches the initial population is spread over: an object on the ground photographed from
+level to steeply above (the authors' and our cases' input views lie within it)."""
+DEFAULT_FOV = np.radians(50.0)
+"""The starting horizontal field of view when none is given: between a phone's main camera in
+portrait (about 50 degrees) and landscape (about 69)."""
+
+
+def attitude(pitch, roll, xp=np):
+    """Camera-to-world rotation (3, 3) of a camera looking along -z, pitched down by ``pitch``
+    (radians), then rolled by ``roll`` about its optical axis (``xp``: numpy or jax.numpy)."""
+    cp, sp, cr, sr = xp.cos(pitch), xp.sin(pitch), xp.cos(roll), xp.sin(roll)
+    down = xp.array([[1.0, 0.0, 0.0], [0.0, cp, sp], [0.0, -sp, cp]])
+    spin = xp.array([[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]])
+    return down @ spin
+
+
+def c2w(pitch: float, roll: float = 0.0) -> np.ndarray:
+    """OpenGL camera-to-world matrix (4, 4) of the camera at :data:`EYE`."""
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = attitude(pitch, roll), EYE
+    return m
+
+
+def focal_ratio_bounds(fov0: float) -> tuple[float, float]:
+    """Bounds of ``log_focal`` = log(f / f0) for fields of view within :data:`FOV_RANGE`."""
+    ratio = lambda fov: np.log(np.tan(0.5 * fov0) / np.tan(0.5 * fov))  # noqa: E731
+    return float(ratio(FOV_RANGE[1])), float(ratio(FOV_RANGE[0]))
+
+
+def fov_of(log_focal: float, fov0: float) -> float:
+    """The horizontal field of view of focal ratio ``exp(log_focal)`` relative to ``fov0``."""
+    return float(2.0 * np.arctan(np.tan(0.5 * fov0) / np.exp(log_focal)))
+
+
+@dataclass(frozen=True)
+class UnknownCamera:
+    """The camera of a single view known only by its image: what the reconstruction estimates."""
+
+    pitch0: float
+    """Pitch of the render camera (radians)."""
+    fov0: float
+    """Horizontal field of view of the render camera (radians): the given one, or a start."""
+    fov_known: bool
+    """Whether the field of view was given (then ``log_focal`` stays 0)."""
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the camera genes."""
+        lo_f, hi_f = focal_ratio_bounds(self.fov0) if not self.fov_known else (0.0, 0.0)
+        return np.array([PITCH_RANGE[0], -ROLL_LIMIT, lo_f]), np.array([PITCH_RANGE[1], ROLL_LIMIT, hi_f])
+
+    def start(self, pitch: float) -> np.ndarray:
+        """Camera genes at ``pitch``, level, at the starting field of view."""
+        return np.array([pitch, 0.0, 0.0])
+
+    def to_render(self, points, genes):
+        """World points (k, 3) seen by the camera ``genes`` mapped to where the render camera sees
+        them at the same pixels (pure JAX)."""
+        eye = jnp.asarray(EYE, points.dtype)
+        r0 = jnp.asarray(attitude(self.pitch0, 0.0), points.dtype)
+        r = attitude(genes[0], genes[1], jnp)
+        k = jnp.exp(genes[2])
+        scale = jnp.stack([k, k, jnp.ones_like(k)])
+        return eye + ((points - eye) @ r) * scale @ r0.T
+
+    def describe(self, genes: np.ndarray) -> dict:
+        """The estimated camera for params.json (degrees, and its transform_matrix)."""
+        pitch, roll, log_focal = (float(g) for g in genes)
+        return {"pitch_deg": float(np.degrees(pitch)), "roll_deg": float(np.degrees(roll)),
+                "fov_x_deg": float(np.degrees(fov_of(log_focal, self.fov0))), "fov_given": self.fov_known,
+                "transform_matrix": c2w(pitch, roll).tolist()}
+
+    def views_at(self, views: Views, genes: np.ndarray) -> Views:
+        """``views`` (the render camera's) as seen by the camera ``genes``: for estimates that
+        read the mask with a camera (the object's anchor on the ground)."""
+        return replace(views, c2w=c2w(genes[0], genes[1])[None], fov_x=fov_of(genes[2], self.fov0))
+
+
+def photo_views(image: str, mask: str | None = None, fov_deg: float | None = None) -> Views:
+    """One photo as views with an unknown camera: the mask from ``mask`` (255 = object) or the
+    image's alpha channel; the field of view ``fov_deg`` (horizontal) when known."""
+    from pathlib import Path
+
+    path = Path(image)
+    if not path.is_file():
+        raise UserError(f"image not found: {path}")
+    try:
+        with Image.open(path) as img:
+            width, height = img.size
+    except (OSError, ValueError) as exc:
+        raise UserError(f"cannot read image {path}: {exc}") from None
+    if fov_deg is not None and not 1.0 <= fov_deg <= 170.0:  # also false for NaN
+        raise UserError(f"--fov: needs 1 to 170 degrees (horizontal), got {fov_deg}")
+    m = _read_mask(Path(mask), width, height) if mask is not None else _read_mask(path, width, height, alpha=True)
+    return unknown_camera_views(Views(np.radians(fov_deg) if fov_deg else DEFAULT_FOV, width, height, np.eye(4)[None],
+                                      m[None], [{"file_path": str(path.resolve())}], path.parent),
+                                fov_known=fov_deg is not None)
+
+
+def unknown_camera_views(views: Views, fov_known: bool) -> Views:
+    """``views`` (one) marked as having an unknown camera; the render camera at the prior's middle."""
+    if len(views) != 1:
+        raise UserError(f"an unknown camera needs exactly one view, got {len(views)}")
+    camera = UnknownCamera(float(np.mean(PITCH_PRIOR)), float(views.fov_x), fov_known)
+    return replace(views, c2w=c2w(camera.pitch0)[None], camera=camera)

@@ -1,0 +1,118 @@
+"""A photo without a camera (``ipm.photo``): the camera's genes move vertices so that the fixed
+render camera sees what the estimated camera would; the camera comes back from a silhouette."""
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+from ipm.capture import open_views
+from ipm.errors import UserError
+from ipm.io import load_views
+from ipm.photo import DEFAULT_FOV, UnknownCamera, c2w, fov_of, photo_views
+from ipm.render.cameras import project
+
+
+@pytest.mark.parametrize("genes", [(0.3, 0.0, 0.0), (0.1, 0.15, 0.4), (1.0, -0.3, -0.5)])
+def test_the_render_camera_sees_mapped_points_where_the_camera_sees_them(genes, rng):
+    """Exact for any point in front of the camera: pitch, roll and focal length are a rotation
+    about the camera centre and a scaling of the camera's image axes."""
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False)
+    pts = np.array([0.0, 0.0, -3.0]) + rng.normal(0, 0.7, (50, 3))
+    pts[:, 1] = np.abs(pts[:, 1])
+    true_px = project(pts, c2w(genes[0], genes[1]), fov_of(genes[2], cam.fov0), 200, 150)
+    mapped = np.asarray(cam.to_render(jnp.asarray(pts), jnp.asarray(genes)))
+    np.testing.assert_allclose(project(mapped, c2w(cam.pitch0), cam.fov0, 200, 150), true_px, atol=1e-3)  # float32
+
+
+def test_camera_genes_have_gradients():
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=True)
+    lo, hi = cam.bounds()
+    assert lo[2] == hi[2] == 0.0 and lo[0] < 0 < 0.5 < hi[0]  # a given FOV stays put
+    g = jax.grad(lambda genes: cam.to_render(jnp.ones((1, 3)), genes).sum())(jnp.array([0.4, 0.1, 0.2]))
+    assert np.all(np.isfinite(g)) and np.all(np.asarray(g) != 0)
+
+
+def test_a_photo_loads_with_an_unknown_camera(tmp_path, tiny_case):
+    data = json.loads((tiny_case / "transforms.json").read_text())
+    frame = data["frames"][0]
+    views = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"], fov_deg=40.0)
+    truth = load_views(tiny_case / "transforms.json")
+    np.testing.assert_array_equal(views.masks, truth.masks[:1])
+    assert views.camera.fov_known and views.fov_x == pytest.approx(np.radians(40.0)) and len(views) == 1
+    # the same as a transforms.json frame without transform_matrix (and without a field of view)
+    del frame["transform_matrix"], data["camera_angle_x"], data["fl_x"], data["fl_y"]
+    frame["mask_path"] = str(tiny_case / frame["mask_path"])
+    data["frames"] = [frame]
+    (tmp_path / "transforms.json").write_text(json.dumps(data))
+    views = load_views(tmp_path / "transforms.json")
+    assert not views.camera.fov_known and views.fov_x == pytest.approx(DEFAULT_FOV)
+    # an RGBA photo brings its own mask
+    rgba = np.zeros((64, 64, 4), np.uint8)
+    rgba[20:50, 25:40] = 255
+    Image.fromarray(rgba).save(tmp_path / "photo.png")
+    assert open_views(image=tmp_path / "photo.png").masks.sum() == 30 * 15
+
+
+@pytest.mark.parametrize("problem, match", [
+    ("no_image", "image not found"), ("bad_fov", "--fov: needs 1 to 170"),
+    ("two_frames", "an unknown camera needs exactly one view"), ("up", "--up does not apply")])
+def test_photo_input_problems_are_clear(tmp_path, tiny_case, problem, match):
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    args = dict(image=tiny_case / frame["file_path"], mask=tiny_case / frame["mask_path"])
+    if problem == "no_image":
+        args["image"] = tmp_path / "none.png"
+    if problem == "bad_fov":
+        args["fov"] = float("nan")
+    if problem == "up":
+        args["up"] = "z"
+    if problem == "two_frames":
+        data = json.loads((tiny_case / "transforms.json").read_text())
+        for fr in data["frames"]:
+            del fr["transform_matrix"]
+            fr["mask_path"] = str(tiny_case / fr["mask_path"])
+        (tmp_path / "transforms.json").write_text(json.dumps(data))
+        args = dict(views=tmp_path / "transforms.json")
+    with pytest.raises(UserError, match=match):
+        open_views(**args)
+
+
+def test_masks_from_the_image_on_a_plain_background(tiny_case, rng):
+    """The textured, lit reference render on its plain background: the colour model of the border
+    finds the object (edge pixels aside), also with sensor noise and with the object cut by the
+    image's bottom edge (the border model then refits without the object's pixels)."""
+    from ipm.segment import mask_from_image
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    rgb = np.asarray(Image.open(tiny_case / frame["file_path"]))[..., :3]
+    truth = np.asarray(Image.open(tiny_case / frame["mask_path"])) > 127
+    iou = lambda m: ((m > 0.5) & truth).sum() / ((m > 0.5) | truth).sum()  # noqa: E731
+    assert iou(mask_from_image(rgb)) > 0.93
+    noisy = np.clip(rgb + rng.normal(0, 4, rgb.shape), 0, 255).astype(np.uint8)
+    assert iou(mask_from_image(noisy)) > 0.9
+    low = np.nonzero(truth.any(1))[0].max()
+    cut = mask_from_image(np.roll(rgb, 63 - low, axis=0))
+    truth = np.roll(truth, 63 - low, axis=0)
+    assert iou(cut) > 0.9 and truth[-1].any()
+
+
+def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
+    """Smoke profile through the command line: one photo, no mask (segmented), no camera: the
+    params carry the estimated camera."""
+    from tests.test_cli import ipm
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    out = tmp_path / "out"
+    res = ipm("reconstruct", "--generator", "dishes", "--image", str(tiny_case / frame["file_path"]), "--out",
+              str(out), "--profile", "smoke", "--quiet", "--threads", "2")
+    assert res.returncode == 0, res.stderr
+    camera = json.loads((out / "params.json").read_text())["camera"]
+    assert -20 <= camera["pitch_deg"] <= 85 and 15 <= camera["fov_x_deg"] <= 100 and not camera["fov_given"]
+    assert np.asarray(camera["transform_matrix"]).shape == (4, 4) and (out / "mesh.glb").is_file()
+    res = ipm("reconstruct", "--generator", "trees", "--method", "ga", "--image", str(tiny_case / frame["file_path"]),
+              "--out", str(tmp_path / "ga"), "--profile", "smoke")
+    assert res.returncode != 0 and "diff path estimates it" in res.stderr and not (tmp_path / "ga").exists()
