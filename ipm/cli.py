@@ -146,6 +146,14 @@ def _run(args) -> int:
         info = method(views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views, **extra)
         print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
+        if args.image is not None:  # the figure a user looks at first
+            from ipm.render.preview import photo_sheet
+
+            photo_sheet(args.image, os.path.join(args.out, "mesh.ply"), info["camera"],
+                        os.path.join(args.out, "overview.png"))
+            cam = info["camera"]
+            print(f"{args.out}: camera pitch {cam['pitch_deg']:.1f} deg, roll {cam['roll_deg']:.1f} deg, "
+                  f"field of view {cam['fov_x_deg']:.1f} deg; figure in overview.png")
     elif args.command == "prepare":
         from ipm.generators import GENERATORS
         from ipm.methods import METHODS, check_generator

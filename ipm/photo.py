@@ -76,6 +76,8 @@ class UnknownCamera:
     """Horizontal field of view of the render camera (radians): the given one, or a start."""
     fov_known: bool
     """Whether the field of view was given (then ``log_focal`` stays 0)."""
+    foot: tuple[float, float, int, int] = (0.0, 0.0, 1, 1)
+    """The mask's foot pixel (x, y: the lowest row's middle) and the image's width and height."""
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the camera genes."""
@@ -85,6 +87,28 @@ class UnknownCamera:
     def start(self, pitch: float) -> np.ndarray:
         """Camera genes at ``pitch``, level, at the starting field of view."""
         return np.array([pitch, 0.0, 0.0])
+
+    def placement(self, genes, xp=np):
+        """Where the camera ``genes`` puts the object: the point where the ray through the mask's
+        foot meets the ground, and the factor (distance to that point over the render camera's,
+        over the focal ratio) that keeps the object's image size. The object's translation offsets
+        and scale ride on these (``ipm.problem``), so a pitch or focal step keeps the foot on its
+        pixel and the object its size in the image: the camera's genes then change how the object
+        is seen, not where, and Adam can move them without dragging the pose along."""
+        x, y, width, height = self.foot
+        f0 = 0.5 * width / np.tan(0.5 * self.fov0)
+
+        def contact(pitch, roll, log_focal):
+            f = f0 * xp.exp(log_focal)
+            d = attitude(pitch, roll, xp) @ xp.stack([(x - 0.5 * width) / f, -(y - 0.5 * height) / f,
+                                                      -xp.ones_like(f)])
+            down = xp.minimum(d[1], -1e-2)  # a ray at or above the horizon: far, not infinite
+            return EYE + d * (-EYE[1] / down), f
+
+        here, f = contact(genes[0], genes[1], genes[2])
+        base, f_base = contact(self.pitch0, 0.0, 0.0 * genes[2])
+        ratio = xp.linalg.norm(here - EYE) / xp.linalg.norm(base - EYE) * f_base / f
+        return here, base, ratio
 
     def to_render(self, points, genes):
         """World points (k, 3) seen by the camera ``genes`` mapped to where the render camera sees
@@ -103,10 +127,35 @@ class UnknownCamera:
                 "fov_x_deg": float(np.degrees(fov_of(log_focal, self.fov0))), "fov_given": self.fov_known,
                 "transform_matrix": c2w(pitch, roll).tolist()}
 
-    def views_at(self, views: Views, genes: np.ndarray) -> Views:
-        """``views`` (the render camera's) as seen by the camera ``genes``: for estimates that
-        read the mask with a camera (the object's anchor on the ground)."""
-        return replace(views, c2w=c2w(genes[0], genes[1])[None], fov_x=fov_of(genes[2], self.fov0))
+
+def registration(camera: dict, c2w_given: np.ndarray) -> np.ndarray:
+    """The similarity (4, 4) that lays the estimated ``camera`` (``UnknownCamera.describe``) onto
+    a given camera-to-world matrix, scaled by the given camera's height over the ground (ours
+    stands one unit above it): how a camera-withheld result is scored in the given world."""
+    scale = float(c2w_given[1, 3]) / EYE[1]
+    if scale <= 0:
+        raise UserError("the given camera is not above the ground y = 0")
+    return np.asarray(c2w_given) @ np.diag([scale, scale, scale, 1.0]) @ np.linalg.inv(camera["transform_matrix"])
+
+
+def placed_pose(pose: dict, place: np.ndarray) -> dict:
+    """``pose`` (``Problem.decode``) moved by the similarity ``place``: its yaw turned by the
+    similarity's heading (exact where the estimated camera's pitch and roll are right)."""
+    scale = float(np.cbrt(np.linalg.det(place[:3, :3])))
+    rot = place[:3, :3] / scale
+    return {**pose, "yaw": float(pose["yaw"] + np.arctan2(rot[0, 2], rot[0, 0])),
+            "translation": (place[:3, :3] @ np.asarray(pose["translation"]) + place[:3, 3]).tolist(),
+            "scale": float(pose["scale"] * scale)}
+
+
+def camera_errors(camera: dict, c2w_given: np.ndarray, fov_given: float) -> dict:
+    """Pitch and roll errors (degrees) and the relative field-of-view error of an estimated
+    ``camera`` against a given one."""
+    r = np.asarray(c2w_given)[:3, :3]
+    pitch = np.degrees(np.arcsin(np.clip(r[1, 2], -1, 1)))  # the optical axis -z_cam below the horizon
+    roll = np.degrees(np.arctan2(r[1, 0], r[1, 1]))  # the image's x axis out of the horizontal
+    return {"pitch_deg": camera["pitch_deg"] - float(pitch), "roll_deg": camera["roll_deg"] - float(roll),
+            "fov_rel": camera["fov_x_deg"] / float(np.degrees(fov_given)) - 1.0}
 
 
 def photo_views(image: str, mask: str | None = None, fov_deg: float | None = None) -> Views:
@@ -134,5 +183,8 @@ def unknown_camera_views(views: Views, fov_known: bool) -> Views:
     """``views`` (one) marked as having an unknown camera; the render camera at the prior's middle."""
     if len(views) != 1:
         raise UserError(f"an unknown camera needs exactly one view, got {len(views)}")
-    camera = UnknownCamera(float(np.mean(PITCH_PRIOR)), float(views.fov_x), fov_known)
+    mask = views.masks[0]
+    bottom = int(np.nonzero(mask.max(1) > 0.5)[0].max())
+    foot = (float(np.nonzero(mask[bottom] > 0.5)[0].mean() + 0.5), bottom + 1.0, views.width, views.height)
+    camera = UnknownCamera(float(np.mean(PITCH_PRIOR)), float(views.fov_x), fov_known, foot)
     return replace(views, c2w=c2w(camera.pitch0)[None], camera=camera)

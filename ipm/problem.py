@@ -86,17 +86,17 @@ class Problem:
     ``max_tilt`` bounds both tilt angles (radians); 0 holds the object upright. ``free_height``
     lets the object's foot leave y = 0 (by up to its height): for views whose ground was
     estimated, not given (``Views.ground_known``); only where several views fix the depth.
+    ``camera``: an ``ipm.photo.UnknownCamera`` whose genes follow the pose in ``z``.
     """
 
     def __init__(self, generator: Generator, anchor_t: np.ndarray, anchor_s: float, max_tilt: float = 0.0,
-                 free_height: bool = False, views: Views | None = None):
+                 free_height: bool = False, camera=None):
         self.generator = generator
         self.spec = generator.spec
         self.n_shape = len(self.spec)
         self.anchor_t = np.asarray(anchor_t, np.float64)
         self.anchor_s = float(anchor_s)
-        self.views = views
-        self.camera = None if views is None else views.camera
+        self.camera = camera
         lower, upper = [np.zeros(self.n_shape), POSE_LOWER], [np.ones(self.n_shape), POSE_UPPER]
         if self.camera is not None:  # camera genes after the pose (``ipm.photo``)
             lower.append(self.camera.bounds()[0])
@@ -117,7 +117,7 @@ class Problem:
         foot free to leave y = 0 where the ground was estimated and several views fix depth; the
         camera's genes where it is unknown (``Views.camera``)."""
         return cls(generator, *estimate_anchor(views), max_tilt=max_tilt,
-                   free_height=not views.ground_known and len(views) > 1, views=views)
+                   free_height=not views.ground_known and len(views) > 1, camera=views.camera)
 
     def key(self, z: np.ndarray) -> tuple:
         """Topology key (discrete parameter values) of ``z``."""
@@ -155,22 +155,30 @@ class Problem:
         for name, value in zip([nm for nm, d in zip(spec.names, spec.discrete) if d], key or ()):
             disc_values[spec.index[name]] = value
         disc_values = jnp.asarray(disc_values)
-        t0 = jnp.asarray(self.anchor_t, jnp.float32)
-        s0 = float(self.anchor_s)
 
         def shape_x(z):
             x = lo + jnp.clip(z[:n], 0.0, 1.0) * span
             return jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
 
-        camera = self.camera if render else None
-        n_pose = len(POSE_NAMES)
-
         def world(v, z):
+            t, s = self._placement(z, jnp)
             p = z[n:]
-            out = s0 * jnp.exp(p[6]) * v @ _rotation(p[0], p[1], p[2]).T + (t0 + s0 * p[3:6])
-            return out if camera is None else camera.to_render(out, p[n_pose:])
+            out = s * v @ _rotation(p[0], p[1], p[2]).T + t
+            return camera.to_render(out, p[len(POSE_NAMES):]) if render and camera is not None else out
 
+        camera = self.camera
         return shape_x, world
+
+    def _placement(self, z, xp=np):
+        """The object's translation and scale at ``z`` (``xp``: numpy or jax.numpy): the anchor
+        plus the pose's offsets, or, with an unknown camera, riding on its foot ray
+        (``UnknownCamera.placement``)."""
+        p = z[self.n_shape:]
+        t0, s0 = xp.asarray(self.anchor_t, p.dtype), self.anchor_s
+        if self.camera is None:
+            return t0 + s0 * p[3:6], s0 * xp.exp(p[6])
+        here, base, ratio = self.camera.placement(p[len(POSE_NAMES):], xp)
+        return here + ratio * (t0 - base + s0 * p[3:6]), s0 * xp.exp(p[6]) * ratio
 
     @lru_cache(maxsize=None)
     def group_vertex_fn(self, lod: int, groups: tuple[tuple[int, ...], ...]):
@@ -223,18 +231,11 @@ class Problem:
 
     def initial_z(self, u: np.ndarray, yaw: float, pitch: float | None = None) -> np.ndarray:
         """``z`` for unit parameters ``u`` at ``yaw``, scaled so its height matches the anchor; with
-        an unknown camera, seen from ``pitch`` (level, the starting field of view), the object
-        placed where that camera's ray through the mask's foot meets the ground."""
+        an unknown camera, seen from ``pitch`` (level, at the starting field of view)."""
         pose = np.array([yaw, 0.0, 0.0, 0.0, 0.0, 0.0, -np.log(self.object_height(u))])
         if self.camera is None:
             return self.clip(np.concatenate([u, pose]))
         genes = self.camera.start(self.camera.pitch0 if pitch is None else pitch)
-        try:
-            t, s = estimate_anchor(self.camera.views_at(self.views, genes))
-        except UserError:  # this pitch sees the foot above the horizon: the render camera's anchor
-            genes, (t, s) = self.camera.start(self.camera.pitch0), (self.anchor_t, self.anchor_s)
-        pose[3:6] = (t - self.anchor_t) / self.anchor_s
-        pose[6] += np.log(s / self.anchor_s)
         return self.clip(np.concatenate([u, pose, genes]))
 
     def to_world(self, z: np.ndarray):
@@ -255,7 +256,7 @@ class Problem:
             "params": self.spec.as_dict(self.spec.from_unit(z[:n])),
             "pose": {
                 "yaw": float(p[0]), "tilt_x": float(p[1]), "tilt_z": float(p[2]),
-                "translation": (self.anchor_t + self.anchor_s * p[3:6]).tolist(),
-                "scale": float(self.anchor_s * np.exp(p[6])),
+                "translation": np.asarray(self._placement(np.asarray(z, np.float64))[0]).tolist(),
+                "scale": float(self._placement(np.asarray(z, np.float64))[1]),
             },
         }

@@ -116,3 +116,55 @@ def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
     res = ipm("reconstruct", "--generator", "trees", "--method", "ga", "--image", str(tiny_case / frame["file_path"]),
               "--out", str(tmp_path / "ga"), "--profile", "smoke")
     assert res.returncode != 0 and "diff path estimates it" in res.stderr and not (tmp_path / "ga").exists()
+
+
+def test_registration_lays_the_estimated_camera_onto_the_given_one():
+    """With the pitch and roll right, the similarity takes the camera centre to the given one, the
+    ground to the ground, turns only about the vertical, and keeps every pixel's ray."""
+    from ipm.photo import EYE, camera_errors, placed_pose, registration
+    from ipm.render.cameras import look_at
+
+    given = look_at([2.0, 1.5, 3.0], [0.0, 0.3, 0.0])
+    errors = camera_errors({"pitch_deg": 0.0, "roll_deg": 0.0, "fov_x_deg": 40.0}, given, np.radians(40.0))
+    pitch = -np.radians(errors["pitch_deg"])
+    camera = {"transform_matrix": c2w(pitch).tolist(), "pitch_deg": np.degrees(pitch), "roll_deg": 0.0, "fov_x_deg": 40}
+    assert camera_errors(camera, given, np.radians(40.0)) == pytest.approx({"pitch_deg": 0, "roll_deg": 0, "fov_rel": 0},
+                                                                         abs=1e-9)
+    m = registration(camera, given)
+    np.testing.assert_allclose(m[:3, :3] @ EYE + m[:3, 3], given[:3, 3], atol=1e-9)
+    ground = np.array([[0.3, 0.0, -2.0], [-1.0, 0.0, -4.0], [2.0, 0.0, -1.0]])
+    np.testing.assert_allclose((ground @ m[:3, :3].T + m[:3, 3])[:, 1], 0.0, atol=1e-9)
+    pts = np.array([[0.1, 0.4, -2.5], [0.5, 0.2, -3.0]])
+    np.testing.assert_allclose(project(pts @ m[:3, :3].T + m[:3, 3], given, 0.7, 64, 48),
+                               project(pts, c2w(pitch), 0.7, 64, 48), atol=1e-9)
+    pose = placed_pose({"yaw": 0.2, "translation": [0.0, 0.0, -3.0], "scale": 0.5}, m)
+    assert pose["translation"][1] == pytest.approx(0.0, abs=1e-9) and pose["scale"] == pytest.approx(0.5 * 1.5)
+
+
+def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
+    """``photo``: view 0's mask without its camera; the result placed in the views' world for
+    scoring, with the camera's errors recorded."""
+    from ipm.methods import METHODS
+    from ipm.photo import placed_pose, registration
+
+    info = METHODS["photo"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes", profile="smoke",
+                            progress=False)
+    assert set(info["camera_error"]) == {"pitch_deg", "roll_deg", "fov_rel"} and info["method"] == "photo"
+    assert (tmp_path / "out" / "mesh.ply").is_file() and info["pose"] != info["photo_pose"]
+    place = registration(info["camera"], load_views(tiny_case / "transforms.json").c2w[0])
+    assert info["pose"] == placed_pose(info["photo_pose"], place)
+
+
+@pytest.mark.parametrize("genes", [(0.2, 0.0, 0.0), (0.7, 0.1, 0.3), (0.45, -0.2, -0.4)])
+def test_the_object_rides_on_the_foot_ray(genes):
+    """Whatever the camera's genes, the ground point under the object lies on the mask's foot
+    pixel, and the size factor keeps a thing's image size: a camera step does not move the object
+    in the image (so Adam can turn the camera without dragging the pose along)."""
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(30.5, 50.0, 64, 48))
+    here, base, ratio = cam.placement(np.array(genes))
+    fov = fov_of(genes[2], cam.fov0)
+    np.testing.assert_allclose(project(here[None], c2w(genes[0], genes[1]), fov, 64, 48)[0], (30.5, 50.0), atol=1e-9)
+    assert here[1] == pytest.approx(0.0) and base[1] == pytest.approx(0.0)
+    f, f0 = 0.5 * 64 / np.tan(0.5 * fov), 0.5 * 64 / np.tan(0.5 * cam.fov0)
+    size = ratio * f / np.linalg.norm(here - np.array([0, 1, 0]))  # image size of a thing `ratio` big at `here`
+    assert size == pytest.approx(f0 / np.linalg.norm(base - np.array([0, 1, 0])))

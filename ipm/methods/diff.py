@@ -13,7 +13,7 @@ before each stage (:func:`read_counts_into`) and, optionally, every kind of a ca
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -351,24 +351,27 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     return z, trace
 
 
-@method("diff", "ours (diff, {views})", layout="hemi", uses_generator=True, differentiable_only=True)
-def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
-             seed: int = 0, progress: bool = True, n_input_views: int | None = None, **overrides) -> dict:
-    """``ipm reconstruct --method diff``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""
-    t0 = time.perf_counter()
+def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, **overrides):
+    """The diff path on ``views``: the problem, its best ``z``, the trace and the profile."""
     check_generator("diff", generator)
-    gen = get_generator(generator)
     prof = get_profile(profile, **overrides)
-    views = load_views(views_path).first(n_input_views)
-    problem = Problem.for_views(gen, views, max_tilt=prof.max_tilt)
+    problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.max_tilt)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
-    mesh = problem.world_mesh(z, max(prof.output_lod, gen.min_fit_lod))
+    return problem, z, trace, prof
+
+
+def write_result(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFrame, prof: DiffProfile,
+                 info: dict, seconds: float, place: np.ndarray | None = None) -> dict:
+    """mesh.ply, mesh.glb, params.json (``info`` with the decoded ``z``), trace.csv and
+    timing.json in ``out``, atomically; ``place`` (4 x 4, a similarity) moves the mesh first."""
+    mesh = problem.world_mesh(z, max(prof.output_lod, problem.generator.min_fit_lod))
+    if place is not None:
+        mesh = replace(mesh, vertices=mesh.vertices @ place[:3, :3].T + place[:3, 3],
+                       normals=mesh.normals @ (place[:3, :3] / np.cbrt(np.linalg.det(place[:3, :3]))).T)
     if not np.all(np.isfinite(mesh.vertices)):
         raise FloatingPointError("the reconstruction diverged (non-finite vertices)")
-    seconds = time.perf_counter() - t0
-    info = {**problem.decode(z), "method": "diff", "profile": profile, "seed": seed,
-            "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace), "settings": asdict(prof),
-            **views.input_frame()}
+    info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
+            "settings": asdict(prof), **info}
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
         save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
@@ -377,3 +380,36 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
         trace.to_csv(tmp / "trace.csv", index=False)
         write_json(tmp / "timing.json", {"seconds": seconds, "evaluations": len(trace)})
     return info
+
+
+@method("diff", "ours (diff, {views})", layout="hemi", uses_generator=True, differentiable_only=True)
+def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
+             seed: int = 0, progress: bool = True, n_input_views: int | None = None, **overrides) -> dict:
+    """``ipm reconstruct --method diff``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""
+    t0 = time.perf_counter()
+    views = load_views(views_path).first(n_input_views)
+    problem, z, trace, prof = fit(views, generator, profile, seed, progress, **overrides)
+    info = {"method": "diff", "profile": profile, "seed": seed, **views.input_frame()}
+    return write_result(out, problem, z, trace, prof, info, time.perf_counter() - t0)
+
+
+@method("photo", "ours (diff, camera unknown, {views})", layout="hemi", uses_generator=True,
+        differentiable_only=True)
+def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
+              seed: int = 0, progress: bool = True, n_input_views: int | None = 1, **overrides) -> dict:
+    """The benchmark's camera-withheld row: the first view's mask alone, without its camera or field
+    of view, goes to the diff path (``ipm.photo``); only afterwards, to score it, the result is
+    placed in the views' world by laying the estimated camera onto the given one
+    (:func:`ipm.photo.registration`), and the camera's errors are recorded in params.json."""
+    from ipm.photo import DEFAULT_FOV, camera_errors, placed_pose, registration, unknown_camera_views
+
+    t0 = time.perf_counter()
+    given = load_views(views_path).first(1)
+    photo = unknown_camera_views(replace(given, fov_x=DEFAULT_FOV, semantics=given.semantics), fov_known=False)
+    problem, z, trace, prof = fit(photo, generator, profile, seed, progress, **overrides)
+    estimate = problem.decode(z)
+    place = registration(estimate["camera"], given.c2w[0])
+    info = {"method": "photo", "profile": profile, "seed": seed, "pose": placed_pose(estimate["pose"], place),
+            "photo_pose": estimate["pose"], "camera_error": camera_errors(estimate["camera"], given.c2w[0],
+                                                                           given.fov_x)}
+    return write_result(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)

@@ -33,3 +33,29 @@ def parts_sheet(reference: str, mesh: str, transforms: str, out_png: str, res: i
             continue
         rows.append(render_parts(m.vertices, m.faces, part_labels(m), cams, views.fov_x, res, res, spp))
     save_rgb(out_png, np.concatenate([np.concatenate(list(r), axis=1) for r in rows], axis=0))
+
+
+def photo_sheet(photo: str, mesh: str, camera: dict, out_png: str, height: int = 256, spp: int = 32) -> None:
+    """The figure of a photo's reconstruction (``ipm reconstruct --image``), atomically: the photo,
+    the fitted parts over it as the estimated ``camera`` sees them, and the mesh turned by 120 and
+    240 degrees about its vertical axis."""
+    from PIL import Image
+
+    from ipm.metrics.silhouette import raycasting_scene
+
+    img = Image.open(photo).convert("RGB")
+    width = max(8, int(round(img.width * height / img.height)))
+    rgb = np.asarray(img.resize((width, height), Image.BILINEAR), np.float64) / 255.0
+    rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)  # sRGB -> linear
+    m = load_mesh(mesh)
+    c2w, fov = np.asarray(camera["transform_matrix"]), np.radians(camera["fov_x_deg"])
+    centre = m.bounds.mean(0)
+    cams = np.stack([_orbit(c2w, centre, d) for d in (0.0, 120.0, 240.0)])
+    parts = render_parts(m.vertices, m.faces, part_labels(m), cams, fov, width, height, spp)
+    f = 0.5 * width / np.tan(0.5 * fov)
+    ys, xs = np.mgrid[0:height, 0:width] + 0.5
+    d = np.stack([(xs - width / 2) / f, -(ys - height / 2) / f, -np.ones_like(xs)], -1).reshape(-1, 3) @ c2w[:3, :3].T
+    rays = np.concatenate([np.broadcast_to(c2w[:3, 3], d.shape), d], 1).astype(np.float32)
+    hit = np.isfinite(raycasting_scene(m).cast_rays(rays)["t_hit"].numpy()).reshape(height, width, 1)
+    over = np.where(hit, 0.4 * rgb + 0.6 * parts[0], rgb)
+    save_rgb(out_png, np.concatenate([rgb, over, parts[1], parts[2]], axis=1))
