@@ -121,3 +121,26 @@ def test_match_area_recovers_the_scale(mitsuba_cpu):
     wrong[-1] += np.log(1.6)
     fixed = objective.match_area(wrong)
     assert abs(fixed[-1] - z[-1]) < 0.25 * np.log(1.6)
+
+
+def test_finalists_are_distinct_basins():
+    """``refine_candidates``: the best individuals that differ from every one taken before in
+    their topology or by more than a quarter turn; near twins are passed over."""
+    from ipm.methods.diff import finalists
+    from ipm.optim.memetic import Individual
+
+    gen = get_generator("dishes")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    handle = gen.spec.index["has_handle"]
+
+    def ind(loss, yaw, has_handle=1):
+        z = problem.initial_z(gen.spec.to_unit(gen.spec.default), yaw)
+        z[handle] = has_handle
+        out = Individual(z, problem.key(z), "t")
+        out.best_loss, out.best_z = loss, z
+        return out
+
+    final = [ind(0.1, 0.0), ind(0.2, 0.3), ind(0.3, 0.0, has_handle=0), ind(0.4, 2.0), ind(0.5, 4.0)]
+    assert [i.best_loss for i in finalists(problem, final, 3)] == [0.1, 0.3, 0.4]
+    assert [i.best_loss for i in finalists(problem, final, 1)] == [0.1]
+    assert len(finalists(problem, final, 10)) == 4
