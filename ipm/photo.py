@@ -128,19 +128,33 @@ class UnknownCamera:
                 "transform_matrix": c2w(pitch, roll).tolist()}
 
 
+def heading(c2w_gl: np.ndarray) -> float:
+    """The direction (radians about +y) a camera looks in, 0 along -z."""
+    forward = -np.asarray(c2w_gl)[:3, 2]
+    return float(np.arctan2(-forward[0], -forward[2]))
+
+
 def registration(camera: dict, c2w_given: np.ndarray) -> np.ndarray:
-    """The similarity (4, 4) that lays the estimated ``camera`` (``UnknownCamera.describe``) onto
-    a given camera-to-world matrix, scaled by the given camera's height over the ground (ours
-    stands one unit above it): how a camera-withheld result is scored in the given world."""
+    """The similarity (4, 4) from a photo's world to a given camera's world that keeps both
+    grounds and the vertical: the estimated ``camera`` (``UnknownCamera.describe``) goes to the
+    given camera's position and heading, scaled by the given camera's height over the ground
+    (ours stands one unit above it). How a camera-withheld result is scored in the given world: a
+    pitch error moves the object along the ground and changes its size, it does not tip it over."""
+    c2w_given, est = np.asarray(c2w_given, np.float64), np.asarray(camera["transform_matrix"], np.float64)
     scale = float(c2w_given[1, 3]) / EYE[1]
     if scale <= 0:
         raise UserError("the given camera is not above the ground y = 0")
-    return np.asarray(c2w_given) @ np.diag([scale, scale, scale, 1.0]) @ np.linalg.inv(camera["transform_matrix"])
+    turn = heading(c2w_given) - heading(est)
+    rot = np.array([[np.cos(turn), 0.0, np.sin(turn)], [0.0, 1.0, 0.0], [-np.sin(turn), 0.0, np.cos(turn)]])
+    m = np.eye(4)
+    m[:3, :3] = scale * rot
+    m[:3, 3] = c2w_given[:3, 3] - m[:3, :3] @ est[:3, 3]
+    return m
 
 
 def placed_pose(pose: dict, place: np.ndarray) -> dict:
-    """``pose`` (``Problem.decode``) moved by the similarity ``place``: its yaw turned by the
-    similarity's heading (exact where the estimated camera's pitch and roll are right)."""
+    """``pose`` (``Problem.decode``) moved by ``place`` (:func:`registration`: a turn about the
+    vertical, a scale and a shift)."""
     scale = float(np.cbrt(np.linalg.det(place[:3, :3])))
     rot = place[:3, :3] / scale
     return {**pose, "yaw": float(pose["yaw"] + np.arctan2(rot[0, 2], rot[0, 0])),

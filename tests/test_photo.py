@@ -118,10 +118,11 @@ def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
     assert res.returncode != 0 and "diff path estimates it" in res.stderr and not (tmp_path / "ga").exists()
 
 
-def test_registration_lays_the_estimated_camera_onto_the_given_one():
-    """With the pitch and roll right, the similarity takes the camera centre to the given one, the
-    ground to the ground, turns only about the vertical, and keeps every pixel's ray."""
-    from ipm.photo import EYE, camera_errors, placed_pose, registration
+def test_registration_keeps_the_ground_and_the_vertical():
+    """The similarity takes the estimated camera's centre to the given one and its heading to the
+    given heading, the ground to the ground, and turns only about the vertical; with the pitch
+    and roll right it keeps every pixel's ray."""
+    from ipm.photo import EYE, camera_errors, heading, placed_pose, registration
     from ipm.render.cameras import look_at
 
     given = look_at([2.0, 1.5, 3.0], [0.0, 0.3, 0.0])
@@ -130,10 +131,14 @@ def test_registration_lays_the_estimated_camera_onto_the_given_one():
     camera = {"transform_matrix": c2w(pitch).tolist(), "pitch_deg": np.degrees(pitch), "roll_deg": 0.0, "fov_x_deg": 40}
     assert camera_errors(camera, given, np.radians(40.0)) == pytest.approx({"pitch_deg": 0, "roll_deg": 0, "fov_rel": 0},
                                                                          abs=1e-9)
+    for tilt in (0.0, 0.1):  # a pitch error still keeps the ground and the vertical
+        m = registration({**camera, "transform_matrix": c2w(pitch + tilt, 0.05 * tilt).tolist()}, given)
+        np.testing.assert_allclose(m[:3, :3] @ EYE + m[:3, 3], given[:3, 3], atol=1e-9)
+        ground = np.array([[0.3, 0.0, -2.0], [-1.0, 0.0, -4.0], [2.0, 0.0, -1.0]])
+        np.testing.assert_allclose((ground @ m[:3, :3].T + m[:3, 3])[:, 1], 0.0, atol=1e-9)
+        np.testing.assert_allclose(m[:3, 1], [0.0, 1.5, 0.0], atol=1e-9)  # the vertical stays vertical
     m = registration(camera, given)
-    np.testing.assert_allclose(m[:3, :3] @ EYE + m[:3, 3], given[:3, 3], atol=1e-9)
-    ground = np.array([[0.3, 0.0, -2.0], [-1.0, 0.0, -4.0], [2.0, 0.0, -1.0]])
-    np.testing.assert_allclose((ground @ m[:3, :3].T + m[:3, 3])[:, 1], 0.0, atol=1e-9)
+    assert heading(m @ np.asarray(camera["transform_matrix"])) == pytest.approx(heading(given))
     pts = np.array([[0.1, 0.4, -2.5], [0.5, 0.2, -3.0]])
     np.testing.assert_allclose(project(pts @ m[:3, :3].T + m[:3, 3], given, 0.7, 64, 48),
                                project(pts, c2w(pitch), 0.7, 64, 48), atol=1e-9)
