@@ -229,13 +229,13 @@ class Problem:
         v = v[np.unique(self.generator.topology(key, lod).faces)]
         return float(max(v[:, 1].max() - v[:, 1].min(), 1e-3))
 
-    def initial_z(self, u: np.ndarray, yaw: float, pitch: float | None = None) -> np.ndarray:
+    def initial_z(self, u: np.ndarray, yaw: float, camera: np.ndarray | None = None) -> np.ndarray:
         """``z`` for unit parameters ``u`` at ``yaw``, scaled so its height matches the anchor; with
-        an unknown camera, seen from ``pitch`` (level, at the starting field of view)."""
+        an unknown camera, seen by the camera genes ``camera`` (default: the render camera's)."""
         pose = np.array([yaw, 0.0, 0.0, 0.0, 0.0, 0.0, -np.log(self.object_height(u))])
         if self.camera is None:
             return self.clip(np.concatenate([u, pose]))
-        genes = self.camera.start(self.camera.pitch0 if pitch is None else pitch)
+        genes = np.array([self.camera.pitch0, 0.0, 0.0]) if camera is None else camera
         return self.clip(np.concatenate([u, pose, genes]))
 
     def to_world(self, z: np.ndarray):

@@ -134,8 +134,8 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             names, part_label = scheme
             top = max(names.values())
             semantic = render_labels(v, f, part_label[labels] - 1, c2w, FOV_X, res, res, spp, n_parts=top)
-        if tree:  # part colours (brown, green) that labels_from_rgb reads; masks = labelled pixels
-            rgb = render_tree_rgb(v, f, labels, c2w, FOV_X, res, res, spp)
+        if tree:  # varied browns and greens that labels_from_rgb reads; masks = labelled pixels
+            rgb = render_tree_rgb(v, f, labels, c2w, FOV_X, res, res, spp, spec.get("texture_seed", 0))
             masks = (semantic > 0).astype(np.float32)
         else:
             rgb = render_rgb(v, f, uv, c2w, FOV_X, res, res, spec.get("texture_seed", 0), spp)

@@ -254,7 +254,22 @@ def test_bad_input_is_a_user_error(tmp_path, tree_case, tiny_case):
     (case / "rgb" / "000.png").unlink()
     with pytest.raises(UserError, match="RGB image not found"):
         run_ga(case / "transforms.json", tmp_path / "d", profile="smoke")
-    assert not any((tmp_path / n).exists() for n in "abcd")
+    with pytest.raises(UserError, match="no label images"):
+        run_ga(case / "transforms.json", tmp_path / "e", profile="smoke", labels="semantic")
+    with pytest.raises(UserError, match="unknown GA labels"):
+        get_options("smoke", labels="paint")
+    assert not any((tmp_path / n).exists() for n in "abcde")
+
+
+def test_labels_from_the_photo_or_the_label_images(tree_case):
+    """``labels``: the tree loss reads the label images or the photo's colours (the benchmark's
+    GA row: the lit references in varied browns and greens); both agree on most of the crown."""
+    from ipm.methods.ga import reference_labels
+
+    views = load_views(tree_case / "transforms.json")
+    semantic, rgb = reference_labels(views, True, "semantic"), reference_labels(views, True, "rgb")
+    assert np.array_equal(reference_labels(views, True, "auto"), semantic) and not np.array_equal(rgb, semantic)
+    assert np.array_equal(rgb > 0, views.masks > 0.5) and _label_iou(rgb[0], semantic[0], 2) > 0.85
 
 
 def test_turned_rays_show_the_object_turned_about_its_base():

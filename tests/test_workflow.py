@@ -84,6 +84,19 @@ def test_seeded_rows_run_per_seed_and_unseeded_ones_once(tmp_path):
     assert "line_convex_hull/tree_1/s3/mesh.ply" in out and "line_convex_hull/tree_1/s4/" not in out
 
 
+def test_tagged_entries_make_their_own_rows(tmp_path):
+    """An ablation: the same method and view count twice, told apart by a tag (the GA with labels
+    from the photo's colours and from the label images)."""
+    rows = ("methods: [{name: ga, views: 1, settings: {labels: rgb}},\n"
+            "          {name: ga, views: 1, tag: labelimages, settings: {labels: semantic}}]\n")
+    rc, out = dry_run(tmp_path, "cases: [tree_1]\n" + rows)
+    assert rc == 0, out
+    assert "results/reconstruct/ga_1v/tree_1/s0/mesh.ply" in out
+    assert "results/reconstruct/ga_1v_labelimages/tree_1/s0/mesh.ply" in out
+    rc, out = dry_run(tmp_path, "cases: [tree_1]\nmethods: [{name: ga, views: 1}, {name: ga, views: 1}]\n")
+    assert rc != 0 and "two methods entries make the row ga_1v; give one a tag" in out
+
+
 @pytest.mark.slow
 def test_smoke_run_of_the_whole_dag(tmp_path):
     res = snakemake("--cores", "2", "--configfile", str(ROOT / "pipelines/config/smoke.yaml"),

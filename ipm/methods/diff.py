@@ -27,7 +27,6 @@ from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
 from ipm.methods import check_generator, method
 from ipm.optim.memetic import Individual, adam_steps, memetic
-from ipm.photo import PITCH_PRIOR
 from ipm.problem import POSE_NAMES, Problem
 from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
@@ -110,15 +109,14 @@ class Objective:
 def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Generator,
                        prepare=lambda z: z) -> list[Individual]:
     """Presets and random samples, spread over yaw bins (the memetic algorithm's start) and, for an
-    unknown camera, over pitches (``ipm.photo.PITCH_PRIOR``); ``prepare`` adjusts each start
+    unknown camera, over its pitch and field of view (``UnknownCamera.spread``); ``prepare`` adjusts each start
     (e.g. its scale)."""
     presets = list(problem.generator.presets.items())
     n_random = int(round(profile.random_share * profile.population))
     bins = rng.permutation(np.resize(np.arange(profile.yaw_bins), max(profile.population, profile.yaw_bins)))
-    pitches = [None] * profile.population
+    cameras = [None] * profile.population
     if problem.camera is not None:
-        lo, hi = PITCH_PRIOR
-        pitches = lo + (rng.permutation(profile.population) + rng.random(profile.population)) / profile.population * (hi - lo)
+        cameras = problem.camera.spread(profile.population, rng)
     pop = []
     for i in range(profile.population):
         yaw = (bins[i] + rng.random()) / profile.yaw_bins * 2 * np.pi
@@ -127,7 +125,7 @@ def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Ge
             u = problem.spec.to_unit(x)
         else:
             name, u = "random", rng.random(problem.n_shape)
-        z = prepare(problem.initial_z(u, yaw, pitches[i]))
+        z = prepare(problem.initial_z(u, yaw, cameras[i]))
         pop.append(Individual(z, problem.key(z), name, lr=profile.lr))
     return pop
 

@@ -118,10 +118,16 @@ class GAOptions:
     0.4 wide at level 0 was 1.4 wide at level 2), 1 for others (as the differentiable path)."""
     loss: str = "auto"
     """``tree``, ``silhouette`` or ``auto`` (tree for generators with branch and foliage parts)."""
+    labels: str = "auto"
+    """Where the tree loss's reference labels come from: ``semantic`` (the views' label images),
+    ``rgb`` (the photos' colours inside the masks, ``ipm.io.semantic.labels_from_rgb``, as the
+    paper does in simple cases) or ``auto`` (label images where the views have them)."""
 
     def __post_init__(self):
         if self.loss not in ("auto", "tree", "silhouette"):
             raise UserError(f"unknown GA loss {self.loss!r} (known: auto, tree, silhouette)")
+        if self.labels not in ("auto", "semantic", "rgb"):
+            raise UserError(f"unknown GA labels {self.labels!r} (known: auto, semantic, rgb)")
         if int(self.impostor) != self.impostor or self.impostor < 16:
             raise UserError(f"impostor must be an integer >= 16 pixels, got {self.impostor!r}")
         if int(self.supersample) != self.supersample or self.supersample < 1:
@@ -543,12 +549,15 @@ def _read_rgb(path: Path, width: int, height: int) -> np.ndarray:
     return rgb
 
 
-def reference_labels(views: Views, tree: bool) -> np.ndarray:
-    """Per-view reference labels (n, H, W): semantic images if the views have them, else (trees)
-    ``labels_from_rgb`` of the RGB inside the mask, or (other generators) the mask as label 1."""
+def reference_labels(views: Views, tree: bool, source: str = "auto") -> np.ndarray:
+    """Per-view reference labels (n, H, W): for the tree loss the views' label images (``source``
+    ``semantic``, or ``auto`` where they have them) or ``labels_from_rgb`` of the RGB inside the
+    mask (``rgb``); for other generators the mask as label 1."""
     if not tree:
         return (views.masks > 0.5).astype(np.uint8)
-    if views.semantics is not None:
+    if source == "semantic" and views.semantics is None:
+        raise UserError("labels: semantic, but the views have no label images (semantic_path)")
+    if source != "rgb" and views.semantics is not None:
         return views.semantics
     from ipm.io.semantic import labels_from_rgb
 
@@ -564,7 +573,7 @@ def problem_objective(views: Views, generator: Generator, options: GAOptions) ->
     """The objective of a reconstruction: the genome anchored by the first view, one impostor
     target per view (checks the inputs before any search)."""
     genome = Genome(generator, *anchor(views, generator.part_names == TREE_PARTS), views.c2w[0])
-    refs = reference_labels(views, uses_tree_loss(generator, options))
+    refs = reference_labels(views, uses_tree_loss(generator, options), options.labels)
     targets = [make_target(lab, c2w, views.fov_x, options) for lab, c2w in zip(refs, views.c2w)]
     return Objective(genome, targets, options)
 

@@ -30,9 +30,9 @@ INVALID = np.iinfo(np.uint32).max
 
 
 TREE_COLOURS = np.array([[0.30, 0.17, 0.08], [0.16, 0.45, 0.10]])
-"""Diffuse colour of branches (brown) and foliage (green) in :func:`render_tree_rgb`: both fall
-in the bands of ``ipm.io.semantic.labels_from_rgb`` (brown hue 22 deg, green hue 102 deg) in light
-and in shadow."""
+"""Mean diffuse colour of branches (brown) and foliage (green) in :func:`render_tree_rgb`
+(varied per face: :func:`tree_colours`): both fall in the bands of
+``ipm.io.semantic.labels_from_rgb`` (brown hue 22 deg, green hue 102 deg) in light and in shadow."""
 
 
 def _as_c2w(c2w) -> np.ndarray:
@@ -237,10 +237,27 @@ def render_labels(vertices, faces, face_labels, c2w, fov_x: float, width: int, h
     return majority_labels(coverage)
 
 
+def tree_colours(face_labels: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Diffuse colour (F, 3) of each face of a tree: ``TREE_COLOURS`` varied per face (seeded),
+    bark over browns of shifting darkness and leaves each its own green (hue 80-125 degrees,
+    lighter and darker), as a photographed tree shows, not two flat colours. Every colour stays
+    in the bands ``ipm.io.semantic.labels_from_rgb`` reads."""
+    from skimage.color import hsv2rgb, rgb2hsv
+
+    rng = np.random.default_rng(seed)
+    lab = np.asarray(face_labels)
+    hsv = rgb2hsv(TREE_COLOURS[lab][:, None, :])[:, 0]
+    leaf = lab == 1
+    hsv[:, 0] += np.where(leaf, rng.uniform(-22, 23, len(lab)), rng.uniform(-8, 8, len(lab))) / 360.0
+    hsv[:, 1] *= np.where(leaf, rng.uniform(0.7, 1.15, len(lab)), rng.uniform(0.7, 1.2, len(lab)))
+    hsv[:, 2] *= np.where(leaf, rng.uniform(0.6, 1.5, len(lab)), rng.uniform(0.55, 1.35, len(lab)))
+    return hsv2rgb(np.clip(hsv, 0.0, 1.0)[:, None, :])[:, 0]
+
+
 def render_tree_rgb(vertices, faces, face_labels, c2w, fov_x: float, width: int, height: int,
-                    spp: int = 32) -> np.ndarray:
-    """Linear RGB renders (n, height, width, 3) of a tree, branches brown and foliage green
-    (``TREE_COLOURS``), under the reference lighting of ``ipm.render.textured``."""
+                    spp: int = 32, seed: int = 0) -> np.ndarray:
+    """Linear RGB renders (n, height, width, 3) of a tree, its bark and leaves in varied browns
+    and greens (:func:`tree_colours`), under the reference lighting of ``ipm.render.textured``."""
     import mitsuba as mi
 
     from ipm.render.textured import _render_lit
@@ -248,7 +265,7 @@ def render_tree_rgb(vertices, faces, face_labels, c2w, fov_x: float, width: int,
     v0, f0, lab = _check_mesh(vertices, faces, face_labels, len(TREE_COLOURS))
     v = v0[f0].reshape(-1, 3)
     f = np.arange(len(v)).reshape(-1, 3)
-    colours = np.repeat(TREE_COLOURS[lab], 3, axis=0)
+    colours = np.repeat(tree_colours(lab, seed), 3, axis=0)
     props = mi.Properties()
     props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": {
         "type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "vertex_color"}}})

@@ -7,8 +7,14 @@ validate(config, schema="../schemas/config.schema.yaml", set_default=True)
 from ipm.methods import METHODS, row_label
 from ipm.reference_lines import REFERENCE_LINES
 
-METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v"
-"""Row ids of methods: the registered name and the number of views, e.g. visual_hull_12v."""
+METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v(_[a-z0-9]+)?"
+"""Row ids of methods: the registered name, the number of views and the entry's tag if any,
+e.g. visual_hull_12v, ga_1v_labels."""
+
+
+def row_id(m):
+    """The row id of a methods entry (``METHOD_ROW``)."""
+    return f"{m['name']}_{m['views']}v" + (f"_{m['tag']}" if m.get("tag") else "")
 
 
 wildcard_constraints:
@@ -47,6 +53,10 @@ def check_methods():
 
     for case in config["cases"]:
         case_split(load_case(case))
+    ids = [row_id(m) for m in config["methods"]]
+    for rid in ids:
+        if ids.count(rid) > 1:
+            raise ValueError(f"config: two methods entries make the row {rid}; give one a tag")
     for m in config["methods"]:
         if m["name"] not in METHODS:
             raise ValueError(f"config: unknown method {m['name']!r} (known: {', '.join(METHODS.names())})")
@@ -66,7 +76,7 @@ check_methods()
 def method_of(wildcards):
     """The methods entry of row id ``wildcards.row`` (``diff_1v`` -> {name: diff, views: 1})."""
     for m in config["methods"]:
-        if f"{m['name']}_{m['views']}v" == wildcards.row:
+        if row_id(m) == wildcards.row:
             return m
     raise ValueError(f"unknown row {wildcards.row}")
 
@@ -93,7 +103,8 @@ def row_info(wildcards):
         return {"label": REFERENCE_LINES[name].label, "kind": "reference"}
     m = method_of(wildcards)
     kind = "method" if METHODS[m["name"]].uses_generator else "baseline"
-    return {"label": row_label(m["name"], m["views"]), "kind": kind}
+    tag = f" [{m['tag']}]" if m.get("tag") else ""
+    return {"label": row_label(m["name"], m["views"]) + tag, "kind": kind}
 
 
 def views_dir(name, views, case):
@@ -137,7 +148,7 @@ def input_view_dirs():
 def all_metrics():
     """Metrics files of every (row, case, seed): method rows on their cases and seeds, reference
     lines (no random choices) on every case they apply to, with the case's first seed."""
-    out = [f"results/evaluate/{m['name']}_{m['views']}v/{case}/s{seed}/metrics.json"
+    out = [f"results/evaluate/{row_id(m)}/{case}/s{seed}/metrics.json"
            for m in config["methods"] for case in method_cases(m) for seed in method_seeds(m, case)]
     return out + [f"results/evaluate/line_{name}/{case}/s{case_seeds(case)[0]}/metrics.json"
                   for name in config["reference_lines"] for case in config["cases"] if line_applies(name, case)]
@@ -152,7 +163,7 @@ def line_applies(name, case):
 
 def all_parts_previews():
     """Part previews of the rows that fit a generator (baselines have no parts)."""
-    return [f"results/reconstruct/{m['name']}_{m['views']}v/{case}/s{seed}/parts.png"
+    return [f"results/reconstruct/{row_id(m)}/{case}/s{seed}/parts.png"
             for m in config["methods"] if METHODS[m["name"]].uses_generator
             for case in method_cases(m) for seed in method_seeds(m, case)]
 
