@@ -154,3 +154,28 @@ def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
     res = ipm("reconstruct", "--generator", "dishes", "--colmap", str(m / "sparse"), "--masks", str(m / "masks"),
               "--out", str(tmp_path / "bad"), "--profile", "smoke")
     assert "--colmap needs --images" in _one_line_error(res) and not (tmp_path / "bad").exists()
+
+
+def test_a_nerfstudio_file_with_alpha_masks_reconstructs(tmp_path, cup_views):
+    """nerfstudio's fields (fl_x, fl_y, cx, cy per frame, no camera_angle_x, no w/h) and RGBA
+    photos whose alpha is the mask (no mask_path): loads as the original and reconstructs."""
+    from PIL import Image
+
+    data = json.loads((cup_views / "transforms.json").read_text())
+    f = 0.5 * data["w"] / np.tan(0.5 * data["camera_angle_x"])
+    frames = []
+    for i, fr in enumerate(data["frames"][:2]):
+        rgb = np.asarray(Image.open(cup_views / fr["file_path"]).convert("RGB"))
+        alpha = np.asarray(Image.open(cup_views / fr["mask_path"]))
+        Image.fromarray(np.dstack([rgb, alpha])).save(tmp_path / f"r_{i}.png")
+        frames.append({"file_path": f"r_{i}", "transform_matrix": fr["transform_matrix"], "fl_x": f, "fl_y": f,
+                       "cx": data["w"] / 2, "cy": data["h"] / 2, "camera_model": "OPENCV", "k1": 0.0})
+    (tmp_path / "transforms.json").write_text(json.dumps({"frames": frames}))
+    views, truth = load_views(tmp_path / "transforms.json"), load_views(cup_views / "transforms.json").first(2)
+    np.testing.assert_array_equal(views.masks, truth.masks)
+    assert views.fov_x == pytest.approx(truth.fov_x) and views.width == truth.width
+    out = tmp_path / "out"
+    res = ipm("reconstruct", "--generator", "dishes", "--views", str(tmp_path / "transforms.json"), "--out", str(out),
+              "--profile", "smoke", "--quiet", "--threads", "2")
+    assert res.returncode == 0, res.stderr
+    assert (out / "mesh.glb").is_file() and "world_from_input" not in json.loads((out / "params.json").read_text())
