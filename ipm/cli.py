@@ -38,7 +38,8 @@ def _parser() -> argparse.ArgumentParser:
                    "(pitch, roll and field of view are estimated with the object; diff path)")
     r.add_argument("--mask", default=None, help="with --image: its mask (255 = object; default: the photo's alpha, "
                    "else segmented from its colours against a plain background)")
-    r.add_argument("--fov", type=float, default=None, help="with --image: the horizontal field of view in degrees, if known")
+    r.add_argument("--fov", type=float, default=None, help="with --image: the horizontal field of view in degrees (default: from the "
+                   "photo's Exif 35 mm focal length, else estimated)")
     r.add_argument("--out", required=True, help="output directory")
     r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam) or ga (tree-structured GA)")
     r.add_argument("--n-input-views", type=int, default=None,

@@ -177,9 +177,18 @@ def camera_errors(camera: dict, c2w_given: np.ndarray, fov_given: float) -> dict
             "fov_rel": camera["fov_x_deg"] / float(np.degrees(fov_given)) - 1.0}
 
 
+def exif_fov(focal_35mm: float, width: int, height: int) -> float:
+    """Horizontal field of view (radians) of a photo from its 35 mm equivalent focal length
+    (Exif FocalLengthIn35mmFilm): the equivalence holds on the diagonal, 43.27 mm of a 36 x 24 mm
+    frame, whatever the photo's aspect."""
+    across = 0.5 * np.hypot(36.0, 24.0) * width / np.hypot(width, height)
+    return float(2.0 * np.arctan(across / focal_35mm))
+
+
 def photo_views(image: str, mask: str | None = None, fov_deg: float | None = None) -> Views:
-    """One photo as views with an unknown camera: the mask from ``mask`` (255 = object) or the
-    image's alpha channel; the field of view ``fov_deg`` (horizontal) when known."""
+    """One photo as views with an unknown camera: the mask from ``mask`` (255 = object), else the
+    photo's alpha or colours; the horizontal field of view ``fov_deg`` when known, else from the
+    photo's Exif 35 mm equivalent focal length when it has one, else estimated."""
     from pathlib import Path
 
     path = Path(image)
@@ -188,10 +197,13 @@ def photo_views(image: str, mask: str | None = None, fov_deg: float | None = Non
     try:
         with Image.open(path) as img:
             width, height = img.size
+            focal_35mm = img.getexif().get_ifd(0x8769).get(0xA405)  # Exif FocalLengthIn35mmFilm
     except (OSError, ValueError) as exc:
         raise UserError(f"cannot read image {path}: {exc}") from None
     if fov_deg is not None and not 1.0 <= fov_deg <= 170.0:  # also false for NaN
         raise UserError(f"--fov: needs 1 to 170 degrees (horizontal), got {fov_deg}")
+    if fov_deg is None and focal_35mm:
+        fov_deg = float(np.degrees(exif_fov(float(focal_35mm), width, height)))
     m = _read_mask(Path(mask), width, height) if mask is not None else _read_mask(path, width, height, alpha=True)
     return unknown_camera_views(Views(np.radians(fov_deg) if fov_deg else DEFAULT_FOV, width, height, np.eye(4)[None],
                                       m[None], [{"file_path": str(path.resolve())}], path.parent),

@@ -173,3 +173,22 @@ def test_the_object_rides_on_the_foot_ray(genes):
     f, f0 = 0.5 * 64 / np.tan(0.5 * fov), 0.5 * 64 / np.tan(0.5 * cam.fov0)
     size = ratio * f / np.linalg.norm(here - np.array([0, 1, 0]))  # image size of a thing `ratio` big at `here`
     assert size == pytest.approx(f0 / np.linalg.norm(base - np.array([0, 1, 0])))
+
+
+def test_the_field_of_view_comes_from_exif(tmp_path):
+    """A phone photo's Exif 35 mm equivalent focal length gives its field of view (26 mm: a
+    main camera, 69 degrees across the long side of a 3:2 frame); --fov still wins."""
+    from ipm.photo import exif_fov
+
+    assert np.degrees(exif_fov(26.0, 300, 200)) == pytest.approx(69.4, abs=0.1)
+    assert np.degrees(exif_fov(26.0, 200, 300)) == pytest.approx(49.6, abs=0.1)
+    rgb = np.full((200, 300, 3), 128, np.uint8)
+    rgb[60:160, 120:180] = (200, 40, 30)
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 26
+    Image.fromarray(rgb).save(tmp_path / "phone.jpg", exif=exif, quality=95)
+    views = photo_views(tmp_path / "phone.jpg")
+    assert views.camera.fov_known and np.degrees(views.fov_x) == pytest.approx(69.4, abs=0.1)
+    assert np.degrees(photo_views(tmp_path / "phone.jpg", fov_deg=40.0).fov_x) == pytest.approx(40.0)
+    Image.fromarray(rgb).save(tmp_path / "plain.jpg", quality=95)
+    assert not photo_views(tmp_path / "plain.jpg").camera.fov_known
