@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.io.views import PINHOLE_MODELS, Views, _read_mask, load_views
+from ipm.io.views import PINHOLE_MODELS, Views, _read_mask, check_pinhole, load_views
 from ipm.render.cameras import colmap_to_gl
 
 AXES = {"x": (1, 0, 0), "-x": (-1, 0, 0), "y": (0, 1, 0), "-y": (0, -1, 0), "z": (0, 0, 1), "-z": (0, 0, -1)}
@@ -93,11 +93,7 @@ def _colmap_camera(cams: dict, used: set[int]) -> tuple[float, int, int]:
     if model not in PINHOLE_MODELS and model not in ("SIMPLE_RADIAL", "RADIAL"):
         raise UserError(f"COLMAP camera model {model} is not supported (known: {', '.join(PINHOLE_MODELS)})")
     fx, fy = values.get("fx", values.get("f")), values.get("fy", values.get("f"))
-    if abs(fy / fx - 1.0) > 0.01:
-        raise UserError(f"the COLMAP camera's fx {fx:g} and fy {fy:g} differ (non-square pixels are not supported)")
-    for key, centre in (("cx", 0.5 * cam.width), ("cy", 0.5 * cam.height)):
-        if abs(values[key] - centre) > 1.0:
-            raise UserError(f"the COLMAP camera's {key} {values[key]:g} is off the image centre {centre:g}")
+    check_pinhole("the COLMAP camera's", fx, fy, values["cx"], values["cy"], cam.width, cam.height)
     return 2.0 * float(np.arctan(0.5 * cam.width / fx)), int(cam.width), int(cam.height)
 
 

@@ -90,8 +90,9 @@ def _parser() -> argparse.ArgumentParser:
 
     for sp in (r, b):
         sp.add_argument("--up", default=None,
-                        help="the input world's up axis (x, y, z, -x, -y, -z), or auto (the cameras' mean up; the ground at the masks' "
-                             "lowest common point); default y for --views (the convention), auto for --colmap")
+                        help="the input world's up axis (x, y, z, -x, -y, -z), or auto (perpendicular to the level cameras' "
+                             "right vectors); the ground then at the masks' lowest common point; default y for "
+                             "--views (the convention), auto for --colmap")
         sp.add_argument("--colmap", default=None, help="a COLMAP sparse model folder instead of --views (pinhole camera)")
         sp.add_argument("--images", default=None, help="with --colmap: the photos' folder")
         sp.add_argument("--masks", default=None, help="with --colmap: one mask per photo (NAME.png or STEM.png; default: "

@@ -1,4 +1,5 @@
-"""A photo without a camera: its pitch, roll and focal length are estimated with the object.
+"""A photo without a camera: its pitch, roll and focal length (the camera genes, which follow the
+pose in ``z``) are estimated with the object.
 
 The paper optimises the camera parameters C with the generator's parameters P. From one view
 only the camera's attitude relative to the ground and its focal length matter: the object's
@@ -24,8 +25,6 @@ from PIL import Image
 from ipm.errors import UserError
 from ipm.io.views import Views, _read_mask
 
-CAMERA_NAMES = ("pitch", "roll", "log_focal")
-"""Camera genes appended to ``z`` after the pose when the camera is unknown."""
 EYE = np.array([0.0, 1.0, 0.0])
 """The camera centre: one unit above the ground (the scale is the object's to choose)."""
 PITCH_RANGE = (np.radians(-20.0), np.radians(85.0))
@@ -149,10 +148,10 @@ def registration(camera: dict, c2w_given: np.ndarray) -> np.ndarray:
     scale = float(c2w_given[1, 3]) / EYE[1]
     if scale <= 0:
         raise UserError("the given camera is not above the ground y = 0")
-    turn = heading(c2w_given) - heading(est)
-    rot = np.array([[np.cos(turn), 0.0, np.sin(turn)], [0.0, 1.0, 0.0], [-np.sin(turn), 0.0, np.cos(turn)]])
+    from ipm.metrics.align import yaw_matrix
+
     m = np.eye(4)
-    m[:3, :3] = scale * rot
+    m[:3, :3] = scale * yaw_matrix(heading(c2w_given) - heading(est))
     m[:3, 3] = c2w_given[:3, 3] - m[:3, :3] @ est[:3, 3]
     return m
 
@@ -214,8 +213,8 @@ def unknown_camera_views(views: Views, fov_known: bool) -> Views:
     """``views`` (one) marked as having an unknown camera; the render camera at the prior's middle."""
     if len(views) != 1:
         raise UserError(f"an unknown camera needs exactly one view, got {len(views)}")
-    mask = views.masks[0]
-    bottom = int(np.nonzero(mask.max(1) > 0.5)[0].max())
-    foot = (float(np.nonzero(mask[bottom] > 0.5)[0].mean() + 0.5), bottom + 1.0, views.width, views.height)
+    from ipm.problem import foot_pixel  # the anchor's foot, so both place the object alike
+
+    foot = (*foot_pixel(views.masks[0]), views.width, views.height)
     camera = UnknownCamera(float(np.mean(PITCH_PRIOR)), float(views.fov_x), fov_known, foot)
     return replace(views, c2w=c2w(camera.pitch0)[None], camera=camera)

@@ -115,6 +115,19 @@ DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
 
 
+def check_pinhole(who: str, fx, fy, cx, cy, width: int, height: int) -> None:
+    """Refuse, with one line naming ``who``, a camera this code cannot render: focal lengths
+    more than 1 % apart (non-square pixels) or a principal point more than a pixel off the image
+    centre (None: not given, nothing to check)."""
+    if fx is not None and fy is not None and abs(float(fy) / float(fx) - 1.0) > 0.01:
+        raise UserError(f"{who} focal lengths fx {float(fx):g} and fy {float(fy):g} differ "
+                        "(non-square pixels are not supported)")
+    for key, value, centre in (("cx", cx, 0.5 * width), ("cy", cy, 0.5 * height)):
+        if value is not None and abs(float(value) - centre) > 1.0:
+            raise UserError(f"{who} {key} {float(value):g} is off the image centre {centre:g} "
+                            "(crop the images to centre the principal point)")
+
+
 def _shared(path: Path, data: dict, frames: list, key: str):
     """``key``'s value, per frame or at the top level (a frame's own wins), one for all frames:
     the views share one camera; None where no frame has it."""
@@ -165,13 +178,7 @@ def _intrinsics(path: Path, data: dict, frames: list, fov_required: bool = True)
             fov_x = None
         else:
             raise UserError(f"{path}: no camera_angle_x or fl_x: the field of view is unknown")
-        if fl_y is not None and fl_x is not None and abs(float(fl_y) / float(fl_x) - 1.0) > 0.01:
-            raise UserError(f"{path}: fl_x {fl_x} and fl_y {fl_y} differ (non-square pixels are not supported)")
-        for key, centre in (("cx", 0.5 * width), ("cy", 0.5 * height)):
-            value = get(key)
-            if value is not None and abs(float(value) - centre) > 1.0:
-                raise UserError(f"{path}: {key} {value} is off the image centre {centre:g} "
-                                "(crop the images to centre the principal point)")
+        check_pinhole(f"{path}:", fl_x, fl_y, get("cx"), get("cy"), width, height)
         bent = [key for key in DISTORTION if float(get(key) or 0.0) != 0.0]
         if bent:
             raise UserError(f"{path}: lens distortion ({', '.join(bent)}) is not supported; undistort the images first")
@@ -256,13 +263,14 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
         except (TypeError, ValueError):
             raise UserError(f"{path}: semantic_labels must map label names to integers") from None
         sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height, top) for fr in frames])
-    views = Views(fov_x or 1.0, width, height, np.stack(c2w), mask_arr, frames, path.parent,
-                  data.get("semantic_labels"), sem_arr)
-    if not posed:  # a photo without its camera: estimated with the object (``ipm.photo``)
-        from ipm.photo import DEFAULT_FOV, unknown_camera_views
+    if posed:
+        return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
+                     data.get("semantic_labels"), sem_arr)
+    from ipm.photo import DEFAULT_FOV, unknown_camera_views  # a photo without its camera (``ipm.photo``)
 
-        views = unknown_camera_views(replace(views, fov_x=fov_x or DEFAULT_FOV), fov_known=fov_x is not None)
-    return views
+    return unknown_camera_views(Views(DEFAULT_FOV if fov_x is None else fov_x, width, height, np.stack(c2w),
+                                      mask_arr, frames, path.parent, data.get("semantic_labels"), sem_arr),
+                                fov_known=fov_x is not None)
 
 
 def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:

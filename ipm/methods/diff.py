@@ -109,7 +109,7 @@ class Objective:
 def initial_population(problem: Problem, profile: DiffProfile, rng: np.random.Generator,
                        prepare=lambda z: z) -> list[Individual]:
     """Presets and random samples, spread over yaw bins (the memetic algorithm's start) and, for an
-    unknown camera, over its pitch and field of view (``UnknownCamera.spread``); ``prepare`` adjusts each start
+    unknown camera, over its pitch (``UnknownCamera.spread``); ``prepare`` adjusts each start
     (e.g. its scale)."""
     presets = list(problem.generator.presets.items())
     n_random = int(round(profile.random_share * profile.population))
@@ -397,13 +397,14 @@ def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes"
               seed: int = 0, progress: bool = True, n_input_views: int | None = 1, **overrides) -> dict:
     """The benchmark's camera-withheld row: the first view's mask alone, without its camera or field
     of view, goes to the diff path (``ipm.photo``); only afterwards, to score it, the result is
-    placed in the views' world by laying the estimated camera onto the given one
-    (:func:`ipm.photo.registration`), and the camera's errors are recorded in params.json."""
+    placed in the views' world by taking the estimated camera to the given one's position and
+    heading, keeping the ground and the vertical (:func:`ipm.photo.registration`), and the
+    camera's errors are recorded in params.json."""
     from ipm.photo import DEFAULT_FOV, camera_errors, placed_pose, registration, unknown_camera_views
 
     t0 = time.perf_counter()
     given = load_views(views_path).first(1)
-    photo = unknown_camera_views(replace(given, fov_x=DEFAULT_FOV, semantics=given.semantics), fov_known=False)
+    photo = unknown_camera_views(replace(given, fov_x=DEFAULT_FOV), fov_known=False)
     problem, z, trace, prof = fit(photo, generator, profile, seed, progress, **overrides)
     estimate = problem.decode(z)
     place = registration(estimate["camera"], given.c2w[0])
