@@ -65,6 +65,19 @@ class DiffProfile:
     default: with 30 steps the dev buildings' mean IoU moved by +0.002 (one view, seeds 0 and 1;
     building_d3 seed 1 0.907 -> 0.979, building_d2 0.951 -> 0.921 twice: from one view a low
     gable and a hip roof are a few per cent apart in the loss either way)."""
+    focal_sweep: int = 0
+    """For a camera whose field of view is unknown (``ipm.photo``): before the last refinement
+    stage, the focal gene is held at the estimate's and at this many points on either side,
+    ``focal_step`` apart in log focal length, walking outwards, the rest refined under each for
+    ``focal_steps`` Adam steps at that stage's resolution; the lowest loss wins
+    (``ipm.methods.diff.sweep_focal``); 0: none. The default profile's 3 x 100 steps, dev cups
+    with the camera withheld (seed 0): field-of-view error cup_1 +43 % -> +7.5 %, cup_2 +17 % ->
+    -2.4 %; pitch error +4.4 -> +0.5 and -5.8 -> -7.3 degrees. With 30 steps a point the
+    profile drowned in the steps' lag and render noise (cup_1 +52 %)."""
+    focal_step: float = 0.1
+    """Grid step of ``focal_sweep`` in log focal length (0.1: about 10 % in focal length)."""
+    focal_steps: int = 30
+    """Adam steps each point of ``focal_sweep`` gets, starting from its inner neighbour's result."""
     read_counts: bool = True
     """Before each refinement stage, set the counts (storeys, windows per facade) to those the
     input views' class masks show on the facades they face (``ipm.facades``); needs class masks
@@ -95,10 +108,11 @@ PROFILES = {
     # default: the memetic stage was 12 x 8 x 48; this one took cup_ext (one view, seed 0) from
     # 0.906 to 0.914 for about 30 s more per single-view cup
     "default": DiffProfile(population=16, ga_iterations=12, adam_per_iteration=64, memetic_res=96,
-                           refine_res=(128, 256), refine_iterations=(100, 60), refine_candidates=3),
+                           refine_res=(128, 256), refine_iterations=(100, 60), refine_candidates=3,
+                           focal_sweep=3, focal_steps=100),
     "smoke": DiffProfile(population=4, ga_iterations=2, adam_per_iteration=6, memetic_res=32,
                          refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2,
-                         polish_sweeps=1, polish_steps=1),
+                         polish_sweeps=1, polish_steps=1, focal_sweep=1, focal_steps=1),
 }
 
 

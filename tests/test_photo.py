@@ -156,6 +156,8 @@ def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
                             progress=False)
     assert set(info["camera_error"]) == {"pitch_deg", "roll_deg", "fov_rel"} and info["method"] == "photo"
     assert (tmp_path / "out" / "mesh.ply").is_file() and info["pose"] != info["photo_pose"]
+    trace = (tmp_path / "out" / "trace.csv").read_text().splitlines()
+    assert len({row.split(",")[3] for row in trace if row.startswith("focal,")}) == 3  # the focal sweep's points
     place = registration(info["camera"], load_views(tiny_case / "transforms.json").c2w[0])
     assert info["pose"] == placed_pose(info["photo_pose"], place)
 
@@ -192,3 +194,38 @@ def test_the_field_of_view_comes_from_exif(tmp_path):
     assert np.degrees(photo_views(tmp_path / "phone.jpg", fov_deg=40.0).fov_x) == pytest.approx(40.0)
     Image.fromarray(rgb).save(tmp_path / "plain.jpg", quality=95)
     assert not photo_views(tmp_path / "plain.jpg").camera.fov_known
+
+
+def test_the_focal_sweep_finds_the_lowest_loss_over_the_field_of_view():
+    """``sweep_focal`` holds the focal gene at each grid point while the rest moves (each point
+    starting from its inner neighbour's result) and keeps the point of lowest loss; with the field
+    of view given it does nothing."""
+    from dataclasses import replace
+
+    from ipm.generators import get_generator
+    from ipm.methods.diff import sweep_focal
+    from ipm.problem import POSE_NAMES, Problem
+    from ipm.profiles import get_profile
+
+    gen = get_generator("dishes")
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(32.0, 60.0, 64, 64))
+    problem = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=cam)
+    z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.3)
+    i, j = problem.n_shape + len(POSE_NAMES) + 2, problem.n_shape + len(POSE_NAMES)  # focal, pitch
+    target = z[i] + 0.23
+    held = []
+
+    def objective(x, seed=None):  # lowest at the target focal length, with the pitch following it
+        held.append(x[i])
+        pitch = 0.9 + x[i] - target
+        grad = np.zeros_like(x)
+        grad[i], grad[j] = 2 * (x[i] - target), 2 * (x[j] - pitch)
+        return float((x[i] - target) ** 2 + (x[j] - pitch) ** 2), grad
+
+    profile = replace(get_profile("smoke"), focal_sweep=3, focal_step=0.1, focal_steps=40)
+    out = sweep_focal(problem, z, profile, objective)
+    assert out[i] == pytest.approx(z[i] + 0.2) and abs(out[j] - 0.87) < 0.5 * abs(z[j] - 0.87)
+    grid = z[i] + 0.1 * np.arange(-3, 4)
+    assert all(np.min(np.abs(grid - h)) < 1e-9 for h in held)  # the focal gene stayed on its grid points
+    known = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=replace(cam, fov_known=True))
+    assert sweep_focal(known, z, profile, objective) is z

@@ -8,7 +8,8 @@ images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimise
 (``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
 hill climb (:func:`polish`), coarse-to-fine Adam with the counts read off the class masks
 before each stage (:func:`read_counts_into`) and, optionally, every kind of a categorical part
-(a roof) tried before the last (:func:`decide`), Occam step.
+(a roof) tried before the last (:func:`decide`), for a camera of unknown field of view a sweep
+over its focal length before the last (:func:`sweep_focal`), Occam step.
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
 from ipm.methods import check_generator, method
 from ipm.optim.memetic import Individual, adam_steps, memetic
+from ipm.photo import fov_of
 from ipm.problem import POSE_NAMES, Problem
 from ipm.profiles import DiffProfile, get_profile
 from ipm.render.silhouette import SilhouetteRenderer
@@ -236,6 +238,53 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     return z
 
 
+def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective,
+                on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """For an unknown camera whose field of view is not given: a profile of the loss over the
+    focal length. The focal gene is held at ``z``'s and at ``focal_sweep`` points either side,
+    ``focal_step`` apart, walking outwards with each point starting from its inner neighbour's
+    result (a continuation: the pitch, pose and shape follow the focal length a step at a time),
+    everything else given ``focal_steps`` Adam steps under ``objective``; the point of lowest loss
+    (same render seeds) wins. The loss over the focal length is shallow (a few per cent between the
+    truth's and a field of view 40 % too wide, cup_1), too shallow for Adam to cross with
+    everything else moving; and a far focal length started from a point fitted to another scores
+    worse than its own basin would, hence the walk."""
+    camera = problem.camera
+    if camera is None or camera.fov_known or profile.focal_sweep <= 0 or profile.focal_steps <= 0:
+        return z
+    i = problem.n_shape + len(POSE_NAMES) + 2
+    score = _scorer(objective, (10_009, 10_010, 10_011, 10_012))
+
+    def held(start: np.ndarray, value: float) -> tuple[np.ndarray, float]:
+        alt = start.copy()
+        alt[i] = value
+
+        def clip(x):
+            x = problem.clip(x)
+            x[i] = value
+            return x
+
+        ind = Individual(alt, problem.key(alt), f"fov={np.degrees(fov_of(value, camera.fov0)):.1f}",
+                         lr=profile.lr * 0.4)
+        adam_steps(ind, profile.focal_steps, objective, clip, profile.reject_ratio, on_eval)
+        cand = ind.z if ind.best_z is None else ind.best_z
+        loss = score(cand)
+        record(ind.origin, loss)
+        return cand, loss
+
+    centre = held(z, float(z[i]))
+    tried = [centre]
+    for direction in (-1, 1):
+        point = centre
+        for k in range(1, profile.focal_sweep + 1):
+            value = float(z[i]) + direction * k * profile.focal_step
+            if not problem.lower[i] <= value <= problem.upper[i]:
+                break
+            point = held(point[0], value)
+            tried.append(point)
+    return min(tried, key=lambda t: t[1])[0]
+
+
 def finalists(problem: Problem, final: list[Individual], k: int) -> list[Individual]:
     """Up to ``k`` of the memetic stage's last generation (best first) that differ from every one
     taken before in their topology or by more than a quarter turn in yaw: the basins worth a
@@ -300,7 +349,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
              * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
-             * profile.decide_steps + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1))
+             * profile.decide_steps + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
+             + (0 if problem.camera is None or problem.camera.fov_known or profile.focal_sweep <= 0 else
+                (2 * profile.focal_sweep + 1) * profile.focal_steps))
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
     state = {"stage": "memetic", "res": profile.memetic_res, "best": np.inf}
@@ -330,6 +381,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
             zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res)) for z in zs]
+        if stage == len(profile.refine_res) - 1 and problem.camera is not None and profile.focal_sweep > 0:
+            state["stage"] = "focal"
+            zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
         refined = []
         for z in zs:
             if profile.read_counts and profile.window_weight > 0:
