@@ -179,11 +179,12 @@ def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.
 
 
 def _tried(problem: Problem, objective, alt: np.ndarray, name: str, steps: int, profile: DiffProfile, score,
-           on_eval, record) -> tuple[np.ndarray, float]:
+           on_eval, record, clip=None) -> tuple[np.ndarray, float]:
     """The best point of ``steps`` Adam steps under ``objective`` from ``alt`` (``alt`` itself for
-    none) and its ``score``, recorded as ``name``: how polish and decide try a candidate."""
+    none; projected by ``clip``, default ``problem.clip``) and its ``score``, recorded as
+    ``name``: how polish, decide and the focal sweep try a candidate."""
     ind = Individual(alt, problem.key(alt), name, lr=profile.lr * 0.4)
-    adam_steps(ind, steps, objective, problem.clip, profile.reject_ratio, on_eval)
+    adam_steps(ind, steps, objective, clip or problem.clip, profile.reject_ratio, on_eval)
     cand = ind.z if ind.best_z is None else ind.best_z
     loss = score(cand)
     record(name, loss)
@@ -264,13 +265,8 @@ def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective
             x[i] = value
             return x
 
-        ind = Individual(alt, problem.key(alt), f"fov={np.degrees(fov_of(value, camera.fov0)):.1f}",
-                         lr=profile.lr * 0.4)
-        adam_steps(ind, profile.focal_steps, objective, clip, profile.reject_ratio, on_eval)
-        cand = ind.z if ind.best_z is None else ind.best_z
-        loss = score(cand)
-        record(ind.origin, loss)
-        return cand, loss
+        name = f"fov={np.degrees(fov_of(value, camera.fov0)):.1f}"
+        return _tried(problem, objective, alt, name, profile.focal_steps, profile, score, on_eval, record, clip)
 
     centre = held(z, float(z[i]))
     tried = [centre]
