@@ -76,7 +76,7 @@ class DiffProfile:
     profile drowned in the steps' lag and render noise (cup_1 +52 %)."""
     focal_step: float = 0.1
     """Grid step of ``focal_sweep`` in log focal length (0.1: about 10 % in focal length)."""
-    focal_steps: int = 30
+    focal_steps: int = 100
     """Adam steps each point of ``focal_sweep`` gets, starting from its inner neighbour's result."""
     read_counts: bool = True
     """Before each refinement stage, set the counts (storeys, windows per facade) to those the
@@ -109,7 +109,7 @@ PROFILES = {
     # 0.906 to 0.914 for about 30 s more per single-view cup
     "default": DiffProfile(population=16, ga_iterations=12, adam_per_iteration=64, memetic_res=96,
                            refine_res=(128, 256), refine_iterations=(100, 60), refine_candidates=3,
-                           focal_sweep=3, focal_steps=100),
+                           focal_sweep=3),
     "smoke": DiffProfile(population=4, ga_iterations=2, adam_per_iteration=6, memetic_res=32,
                          refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2,
                          polish_sweeps=1, polish_steps=1, focal_sweep=1, focal_steps=1),

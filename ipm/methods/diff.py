@@ -239,6 +239,12 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     return z
 
 
+def sweeps_focal(problem: Problem, profile: DiffProfile) -> bool:
+    """Whether :func:`sweep_focal` runs: a camera of unknown field of view and a sweep in the profile."""
+    camera = problem.camera
+    return camera is not None and not camera.fov_known and profile.focal_sweep > 0 and profile.focal_steps > 0
+
+
 def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective,
                 on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
     """For an unknown camera whose field of view is not given: a profile of the loss over the
@@ -250,9 +256,9 @@ def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective
     truth's and a field of view 40 % too wide, cup_1), too shallow for Adam to cross with
     everything else moving; and a far focal length started from a point fitted to another scores
     worse than its own basin would, hence the walk."""
-    camera = problem.camera
-    if camera is None or camera.fov_known or profile.focal_sweep <= 0 or profile.focal_steps <= 0:
+    if not sweeps_focal(problem, profile):
         return z
+    camera = problem.camera
     i = problem.n_shape + len(POSE_NAMES) + 2
     score = _scorer(objective, (10_009, 10_010, 10_011, 10_012))
 
@@ -346,8 +352,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
              * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
              * profile.decide_steps + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
-             + (0 if problem.camera is None or problem.camera.fov_known or profile.focal_sweep <= 0 else
-                (2 * profile.focal_sweep + 1) * profile.focal_steps))
+             + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
     state = {"stage": "memetic", "res": profile.memetic_res, "best": np.inf}
@@ -377,7 +382,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
             zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res)) for z in zs]
-        if stage == len(profile.refine_res) - 1 and problem.camera is not None and profile.focal_sweep > 0:
+        if stage == len(profile.refine_res) - 1 and sweeps_focal(problem, profile):
             state["stage"] = "focal"
             zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
         refined = []
