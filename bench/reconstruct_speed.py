@@ -1,15 +1,21 @@
-"""Benchmark: silhouette iteration time (render + backward) per resolution, and whole single-view
-reconstructions of the given cases (cups by default; buildings: ``--cases building_1 ...``) with
-their 64-view IoU.
+"""Benchmark: silhouette loss-and-gradient time per renderer, resolution and population size, and
+whole single-view reconstructions of the given cases with each renderer (cups by default;
+buildings: ``--cases building_1 ...``) with their 64-view IoU, all in one run so the renderers'
+ratio is measured on the same machine at the same time.
 
     .venv/bin/python bench/reconstruct_speed.py [--device cpu|cuda] [--threads 2] [--profile default]
-        [--cases cup_1 cup_2 cup_ext] [--out results/bench/reconstruct_speed.json]
+        [--renderers jax mitsuba] [--cases cup_1 cup_2 cup_ext] [--resolutions 64 128 256 512]
+        [--populations 1 4 16 64] [--out results/bench/reconstruct_speed.json]
         [--keep DIR] [--no-eval] [--input-res 256]
 
-``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine lacks); ``--keep DIR``
-keeps each case's reference and reconstruction there, for ``ipm evaluate`` on another machine.
-Prints a table and writes the numbers as JSON (with the machine's description). Targets
-(issues 2 and 11): a default-profile cup or building reconstruction within 5 minutes on 2 CPU cores.
+Iterations: one loss and gradient of the first case's input view at the refinement level of detail
+(render + backward); for the JAX renderer also a population of individuals in one call
+(``EdgeRenderer.loss_and_grad_batch``) at ``--population-res``; for Mitsuba a population costs its
+size in single calls. ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine
+lacks); ``--keep DIR`` keeps each case's reference and reconstructions there, for ``ipm evaluate``
+on another machine. Prints a table and writes the numbers as JSON (with the machine's description).
+Targets (issues 2, 11, 13): a default-profile cup or building within 5 minutes on 2 CPU cores; the
+JAX renderer's cup at most 0.4 x the Mitsuba path's time; a population of 16 at most 4 x one.
 """
 from __future__ import annotations
 
@@ -34,21 +40,38 @@ def gpu_name() -> str | None:
     return out.splitlines()[0].strip() if out.strip() else None
 
 
+def _timed(fn, iterations: int, warmup: int = 3) -> float:
+    """Mean milliseconds of ``fn()`` over ``iterations`` calls after ``warmup`` (compilation)."""
+    for _ in range(warmup):
+        fn()
+    t0 = time.perf_counter()
+    for _ in range(iterations):
+        fn()
+    return 1000 * (time.perf_counter() - t0) / iterations
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--profile", default="default")
+    ap.add_argument("--renderers", nargs="+", default=["jax", "mitsuba"], choices=["jax", "mitsuba"])
     ap.add_argument("--cases", nargs="+", default=["cup_1", "cup_2", "cup_ext"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="one reconstruction per case and seed")
-    ap.add_argument("--resolutions", nargs="+", type=int, default=[128, 256, 512])
+    ap.add_argument("--resolutions", nargs="+", type=int, default=[64, 128, 256, 512])
+    ap.add_argument("--populations", nargs="+", type=int, default=[1, 4, 16, 64])
+    ap.add_argument("--population-res", type=int, default=128, help="resolution of the population timings")
     ap.add_argument("--iterations", type=int, default=20, help="timed iterations per resolution")
     ap.add_argument("--input-res", type=int, default=256,
                     help="width of the synthesized input view (the default DAG's synth res)")
     ap.add_argument("--out", default="results/bench/reconstruct_speed.json")
     ap.add_argument("--keep", help="copy references and reconstructions into this folder")
     ap.add_argument("--no-eval", action="store_true", help="skip the IoU (no open3d needed)")
+    ap.add_argument("--compile-cache", action="store_true",
+                    help="keep JAX's persistent compilation cache on (default off: every compilation timed)")
     args = ap.parse_args()
+    if not args.compile_cache:
+        os.environ["IPM_JAX_CACHE"] = "off"
 
     from ipm.runtime import configure_threads, set_mitsuba_variant
 
@@ -67,7 +90,9 @@ def main() -> None:
     record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
               "gpu": gpu_name() if args.device == "cuda" else None,
               "device": args.device, "threads": args.threads, "profile": args.profile, "input_res": args.input_res,
-              "iteration_ms": {}, "reconstructions": {}}
+              "compile_cache": args.compile_cache,
+              "iteration_ms": {r: {} for r in args.renderers}, "population_ms": {r: {} for r in args.renderers},
+              "reconstructions": {r: {} for r in args.renderers}}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for case in args.cases:
@@ -79,44 +104,65 @@ def main() -> None:
         lod = max(1, gen.min_fit_lod)
         problem = Problem(gen, *estimate_anchor(views))
         z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.5)
-        for res in args.resolutions:
-            objective = Objective(problem, views, res, lod, get_profile(args.profile))
-            for _ in range(3):
-                objective(z)  # JIT warm-up
-            t0 = time.perf_counter()
-            for _ in range(args.iterations):
-                objective(z)
-            ms = 1000 * (time.perf_counter() - t0) / args.iterations
-            record["iteration_ms"][res] = ms
-            print(f"iteration at {res:4d} px (render + backward, {gen.name} lod {lod}): {ms:8.1f} ms", flush=True)
+        for renderer in args.renderers:
+            prof = get_profile(args.profile, renderer=renderer)
+            for res in args.resolutions:
+                objective = Objective(problem, views, res, lod, prof)
+                ms = _timed(lambda: objective(z), args.iterations)
+                record["iteration_ms"][renderer][res] = ms
+                print(f"{renderer:8s} iteration at {res:4d} px (render + backward, {gen.name} lod {lod}): "
+                      f"{ms:8.1f} ms", flush=True)
+            objective = Objective(problem, views, args.population_res, lod, prof)
+            fn, faces, _ = objective._groups(problem.key(z))  # noqa: SLF001 - the objective's own mesh
+            rng = np.random.default_rng(0)
+            for size in args.populations:
+                zs = z + rng.normal(0.0, 0.01, (size, len(z)))
+                if renderer == "jax":
+                    call = lambda: objective.renderer.loss_and_grad_batch(fn, zs, faces, objective.targets,  # noqa: E731
+                                                                          range(size))
+                else:
+                    call = lambda: [objective(zi) for zi in zs]  # noqa: E731
+                ms = _timed(call, max(2, args.iterations // size), warmup=1 if renderer == "mitsuba" else 2)
+                record["population_ms"][renderer][size] = ms
+                print(f"{renderer:8s} population of {size:3d} at {args.population_res} px: {ms:9.1f} ms "
+                      f"({ms / record['population_ms'][renderer][args.populations[0]]:.2f} x "
+                      f"{args.populations[0]})", flush=True)
         for case in args.cases:
             for seed in args.seeds:
-                t0 = time.perf_counter()
-                info = METHODS["diff"](tmp / case / "transforms.json", tmp / f"rec_{case}", generator=generators[case],
-                                       profile=args.profile, seed=seed, progress=False)
-                seconds = time.perf_counter() - t0
-                if args.keep:
-                    keep = Path(args.keep) / case
-                    keep.mkdir(parents=True, exist_ok=True)
-                    shutil.copy(tmp / case / "reference.ply", keep / "reference.ply")
-                    for name in ("mesh.ply", "params.json"):
-                        shutil.copy(tmp / f"rec_{case}" / name, keep / f"seed{seed}_{name}")
-                discrete = {name: info["params"][name] for name, d in
-                            zip(get_generator(generators[case]).spec.names, get_generator(generators[case]).spec.discrete) if d}
-                row = {"seconds": seconds, "evaluations": info["evaluations"], "discrete": discrete}
-                text = f"{case:8s} seed {seed}: {seconds:7.1f} s, {info['evaluations']} evaluations"
-                if not args.no_eval:
-                    from ipm.metrics import evaluate_meshes
+                for renderer in args.renderers:
+                    out = tmp / f"rec_{case}_{renderer}_s{seed}"
+                    t0 = time.perf_counter()
+                    info = METHODS["diff"](tmp / case / "transforms.json", out, generator=generators[case],
+                                           profile=args.profile, seed=seed, progress=False, renderer=renderer)
+                    seconds = time.perf_counter() - t0
+                    if args.keep:
+                        keep = Path(args.keep) / case
+                        keep.mkdir(parents=True, exist_ok=True)
+                        shutil.copy(tmp / case / "reference.ply", keep / "reference.ply")
+                        for name in ("mesh.ply", "params.json"):
+                            shutil.copy(out / name, keep / f"{renderer}_seed{seed}_{name}")
+                    spec = get_generator(generators[case]).spec
+                    discrete = {name: info["params"][name] for name, d in zip(spec.names, spec.discrete) if d}
+                    row = {"seconds": seconds, "evaluations": info["evaluations"], "discrete": discrete}
+                    text = f"{case:8s} seed {seed} {renderer:8s}: {seconds:7.1f} s, {info['evaluations']} evaluations"
+                    if not args.no_eval:
+                        from ipm.metrics import evaluate_meshes
 
-                    m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(tmp / f"rec_{case}" / "mesh.ply"))
-                    row.update(iou_mean=m["iou_mean"], viou=m["viou"])
-                    text += f", IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}"
-                record["reconstructions"][f"{case}/seed{seed}"] = row
-                print(f"{text}, {' '.join(f'{k}={v:g}' for k, v in discrete.items())}", flush=True)
+                        m = evaluate_meshes(load_mesh(tmp / case / "reference.ply"), load_mesh(out / "mesh.ply"))
+                        row.update(iou_mean=m["iou_mean"], viou=m["viou"])
+                        text += f", IoU {m['iou_mean']:.4f}, volumetric IoU {m['viou']:.4f}"
+                    record["reconstructions"][renderer][f"{case}/seed{seed}"] = row
+                    print(f"{text}, {' '.join(f'{k}={v:g}' for k, v in discrete.items())}", flush=True)
+    summary = {r: float(np.mean([v["seconds"] for v in rec.values()])) for r, rec in record["reconstructions"].items()
+               if rec}
+    record["mean_reconstruction_s"] = summary
+    if {"jax", "mitsuba"} <= set(summary):
+        record["jax_over_mitsuba"] = summary["jax"] / summary["mitsuba"]
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(record, indent=2) + "\n")
-    print(f"written {out}; mean reconstruction {np.mean([r['seconds'] for r in record['reconstructions'].values()]):.1f} s")
+    ratio = f"; jax / mitsuba {record['jax_over_mitsuba']:.2f}" if "jax_over_mitsuba" in record else ""
+    print(f"written {out}; mean reconstruction " + ", ".join(f"{r} {v:.1f} s" for r, v in summary.items()) + ratio)
 
 
 if __name__ == "__main__":

@@ -50,6 +50,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="diff: let the object lean up to this many radians (default 0: upright, on y = 0)")
     r.add_argument("--window-weight", type=float, default=None,
                    help="diff: weight of the window-mask term for buildings with semantic images (default 1; 0: silhouette only)")
+    r.add_argument("--renderer", default=None, choices=["auto", "jax", "mitsuba"],
+                   help="diff: silhouette renderer (jax: edge sampling, one compiled function; mitsuba; "
+                        "auto: jax unless window masks need mitsuba; default: the profile's)")
 
     pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics)")
     pr.add_argument("method", help="registered method name with a preparation stage (ga)")
@@ -143,6 +146,10 @@ def _run(args) -> int:
             if not lo <= value <= hi:  # also false for NaN
                 raise UserError(f"{flag}: needs {lo:g} to {hi:g}{unit}, got {value}")
             extra[name] = value
+        if args.renderer is not None:
+            if args.method not in ("diff", "photo"):
+                raise UserError("--renderer applies to the diff path only")
+            extra["renderer"] = args.renderer
         views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
         info = method(views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,

@@ -9,6 +9,9 @@ from ipm.errors import UserError
 WINDOW_LOSSES = ("mse", "dice")
 """Losses of the class-mask term (``ipm.render.silhouette._pyramid_loss``)."""
 
+RENDERERS = ("auto", "jax", "mitsuba")
+"""Silhouette renderers of the diff path (``DiffProfile.renderer``)."""
+
 
 @dataclass(frozen=True)
 class DiffProfile:
@@ -87,6 +90,11 @@ class DiffProfile:
     by at most this share: one view cannot tell a handle hidden behind the body from none."""
     spp: int = 4
     """Samples per pixel of the silhouette renders."""
+    renderer: str = "mitsuba"
+    """Silhouette renderer: ``jax`` (``ipm.render.edges``: scanline coverage and edge-sampling
+    gradients, one compiled function with the generator), ``mitsuba`` (``ipm.render.silhouette``),
+    or ``auto``: jax for silhouettes, Mitsuba where a class-mask term (window masks) needs
+    visibility."""
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""
@@ -124,6 +132,8 @@ def get_profile(name: str, **overrides) -> DiffProfile:
     if unknown:
         raise UserError(f"unknown diff setting(s) {', '.join(unknown)} (known: {', '.join(DiffProfile.__dataclass_fields__)})")
     prof = replace(PROFILES[name], **overrides)
+    if prof.renderer not in RENDERERS:
+        raise UserError(f"unknown renderer {prof.renderer!r} (known: {', '.join(RENDERERS)})")
     if prof.window_loss not in WINDOW_LOSSES:
         raise UserError(f"unknown window_loss {prof.window_loss!r} (known: {', '.join(WINDOW_LOSSES)})")
     return prof

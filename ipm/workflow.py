@@ -11,10 +11,10 @@ from pathlib import Path
 
 
 @contextlib.contextmanager
-def _logged(log: str | None, threads: int, mitsuba: bool = False):
+def _logged(log: str | None, threads: int, mitsuba: bool = False, device: str = "cpu"):
     from ipm.runtime import configure_threads
 
-    configure_threads(threads)
+    configure_threads(threads, device)
     stream = open(log, "w") if log else None
     old = sys.stderr
     if stream:
@@ -23,7 +23,7 @@ def _logged(log: str | None, threads: int, mitsuba: bool = False):
         if mitsuba:
             from ipm.runtime import set_mitsuba_variant
 
-            set_mitsuba_variant("cpu", threads)
+            set_mitsuba_variant(device, threads)
         yield
     finally:
         sys.stderr = old
@@ -56,10 +56,11 @@ def prepare_step(method: str, generator: str, out: str, profile: str, seed: int,
 
 def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, profile: str, seed: int,
                      n_input_views: int, prepared: str | None = None, settings: dict | None = None,
-                     threads: int = 1, log=None):
+                     threads: int = 1, log=None, device: str = "cpu"):
     """One reconstruction, ours or a baseline (the generator goes only to methods that take one,
-    ``prepared`` only to methods with a preparation stage; ``settings`` override the profile's)."""
-    with _logged(log, threads, mitsuba=True):
+    ``prepared`` only to methods with a preparation stage; ``settings`` override the profile's), with
+    JAX and Mitsuba on ``device`` (the config's: cpu or cuda)."""
+    with _logged(log, threads, mitsuba=True, device=device):
         from ipm.methods import METHODS
 
         fn = METHODS[method]

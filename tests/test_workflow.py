@@ -84,6 +84,21 @@ def test_seeded_rows_run_per_seed_and_unseeded_ones_once(tmp_path):
     assert "line_convex_hull/tree_1/s3/mesh.ply" in out and "line_convex_hull/tree_1/s4/" not in out
 
 
+def test_device_cuda_declares_a_gpu_per_reconstruction(tmp_path):
+    """``device: cuda`` reaches the reconstruct jobs, each declaring one GPU (so ``--resources
+    gpu=N`` bounds how many run at once); the default runs them on the CPU without one."""
+    rc, out = dry_run(tmp_path, "cases: [cup_1]\ndevice: cuda\nmethods: [{name: diff, views: 1}]\n")
+    assert rc == 0, out
+    job = out[out.index("rule reconstruct:"):]
+    job = job[: job.index("\n\n")]
+    assert "gpu=1" in job
+    rc, out = dry_run(tmp_path, "cases: [cup_1]\nmethods: [{name: diff, views: 1}]\n")
+    job = out[out.index("rule reconstruct:"):]
+    assert "gpu=1" not in job[: job.index("\n\n")]
+    rc, out = dry_run(tmp_path, "cases: [cup_1]\ndevice: tpu\n")
+    assert rc != 0 and "tpu" in out
+
+
 def test_tagged_entries_make_their_own_rows(tmp_path):
     """An ablation: the same method and view count twice, told apart by a tag (the GA with labels
     from the photo's colours and from the label images)."""

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from ipm.errors import UserError
 from ipm.facades import marker_turn, read_counts
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
@@ -31,6 +32,7 @@ from ipm.optim.memetic import Individual, adam_steps, memetic
 from ipm.photo import fov_of
 from ipm.problem import POSE_NAMES, Problem
 from ipm.profiles import DiffProfile, get_profile
+from ipm.render.edges import EdgeRenderer
 from ipm.render.silhouette import SilhouetteRenderer
 
 
@@ -45,6 +47,17 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
     return (views.semantics == value).astype(np.float32), generator.semantic_labels[name]
 
 
+def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int):
+    """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
+    the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility."""
+    if name == "jax" and class_term:
+        raise UserError("the jax renderer draws silhouettes only: with window masks use renderer "
+                        "mitsuba or auto, or window_weight 0")
+    if name == "jax" or (name == "auto" and not class_term):
+        return EdgeRenderer(c2w, fov_x, width, height, spp)
+    return SilhouetteRenderer(c2w, fov_x, width, height, spp)
+
+
 class Objective:
     """Silhouette (and class mask) loss and gradient of ``z`` at one resolution and level of detail."""
 
@@ -52,8 +65,9 @@ class Objective:
         self.problem, self.lod, self.reg = problem, lod, profile.reg_weight
         self.targets = resize_masks(views.masks, width)
         h = self.targets.shape[1]
-        self.renderer = SilhouetteRenderer(views.c2w, views.fov_x, width, h, profile.spp)
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
+        self.renderer = make_renderer(profile.renderer, masks is not None, views.c2w, views.fov_x, width, h,
+                                      profile.spp)
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss

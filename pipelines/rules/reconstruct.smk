@@ -34,9 +34,11 @@ rule reconstruct:
         generator=case_generator,
         profile=config["profile"],
         settings=lambda wildcards: method_of(wildcards).get("settings", {}),
+        device=config["device"],
     threads: 1
     resources:
         mem_mb=4000,
+        gpu=1 if config["device"] == "cuda" else 0,
     conda:
         "../envs/ipm.yaml"
     script:

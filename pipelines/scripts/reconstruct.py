@@ -5,4 +5,5 @@ reconstruct_step(method=snakemake.params.method, transforms=snakemake.input.tran
                  profile=snakemake.params.profile, seed=int(snakemake.wildcards.seed),
                  n_input_views=snakemake.params.n_input_views,
                  prepared=snakemake.input.get("prepared"), settings=snakemake.params.settings,
-                 threads=snakemake.threads, log=snakemake.log[0])
+                 threads=snakemake.threads, log=snakemake.log[0],
+                 device=snakemake.params.device)
