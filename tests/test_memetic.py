@@ -70,6 +70,8 @@ def test_profiles():
     assert PROFILES["paper"].population == 16 and PROFILES["paper"].refine_res == (256, 512)
     with pytest.raises(UserError, match="unknown profile"):
         get_profile("fast")
+    with pytest.raises(UserError, match="unknown renderer 'opengl'"):
+        get_profile("smoke", renderer="opengl")
 
 
 def test_discrete_moves_cover_many_valued_genes(rng):

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pandas as pd
+import pytest
 import trimesh
 
 from ipm.generators import get_generator
@@ -29,10 +30,11 @@ SMALL = dict(population=4, ga_iterations=3, adam_per_iteration=16, memetic_res=4
 """A budget a little above ``smoke``: enough to show the search working on 64 px inputs."""
 
 
-def test_diff_reconstruction_writes_everything(tmp_path, tiny_case):
+@pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
+def test_diff_reconstruction_writes_everything(tmp_path, tiny_case, renderer):
     out = tmp_path / "rec"
     info = METHODS["diff"](tiny_case / "transforms.json", out, generator="dishes", profile="smoke", seed=3,
-                           progress=False, n_input_views=1, **SMALL)
+                           progress=False, n_input_views=1, renderer=renderer, **SMALL)
     assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.ply", "params.json", "timing.json",
                                                      "trace.csv"]
     params = json.loads((out / "params.json").read_text())
@@ -67,14 +69,15 @@ def test_max_tilt_bounds_both_tilts():
         assert np.all(problem.clip(np.full(problem.dim, -3.0))[tilts] == -max_tilt)
 
 
-def test_reconstruction_is_deterministic(tmp_path, tiny_case):
+@pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
+def test_reconstruction_is_deterministic(tmp_path, tiny_case, renderer):
     """Same seed, same answer, bit for bit, on one thread (several threads reorder float sums)."""
     import drjit as dr
 
     dr.set_thread_count(1)
     try:
-        a = METHODS["diff"](tiny_case / "transforms.json", tmp_path / "a", profile="smoke", seed=5, progress=False)
-        b = METHODS["diff"](tiny_case / "transforms.json", tmp_path / "b", profile="smoke", seed=5, progress=False)
+        a, b = (METHODS["diff"](tiny_case / "transforms.json", tmp_path / name, profile="smoke", seed=5,
+                                progress=False, renderer=renderer) for name in "ab")
     finally:
         dr.set_thread_count(2)
     assert a["params"] == b["params"] and a["pose"] == b["pose"]

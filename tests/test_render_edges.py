@@ -12,7 +12,7 @@ from ipm.generators import get_generator
 from ipm.metrics import raycast_masks
 from ipm.problem import Problem
 from ipm.render.cameras import orbit_camera
-from ipm.render.edges import EdgeRenderer, edge_table
+from ipm.render.edges import EdgeRenderer
 from ipm.render.silhouette import SilhouetteRenderer
 
 FOV = 0.7
@@ -30,14 +30,6 @@ def _mug(lod=0):
     key = problem.key(z0)
     topo = gen.topology(key, lod)
     return gen, problem, z0, problem.vertex_fn(key, lod), topo
-
-
-def test_edge_table_of_a_tetrahedron():
-    faces = np.array([[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
-    edges, opposite = edge_table(faces)
-    assert len(edges) == 6 and opposite.shape == (6, 2)
-    for (a, b), opp in zip(edges, opposite):  # each edge's two opposite vertices are the other two
-        assert sorted(opp) == sorted(set(range(4)) - {a, b})
 
 
 def test_coverage_matches_ray_cast_and_mitsuba(mitsuba_cpu):

@@ -128,6 +128,28 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
         get_profile("smoke", window_loss="l1")
 
 
+def test_renderer_choice_with_window_masks(building_views):
+    """The JAX renderer draws silhouettes only: asked for with window masks it is refused, ``auto``
+    gives the window term to Mitsuba, and without masks ``auto`` takes the JAX renderer (buildings'
+    shared-position scene included: the same loss as Mitsuba's within render noise)."""
+    from ipm.render.edges import EdgeRenderer
+    from ipm.render.silhouette import SilhouetteRenderer
+
+    gen = get_generator("buildings")
+    views = load_views(building_views / "transforms.json")
+    problem = Problem(gen, *estimate_anchor(views))
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["villa"]), 0.5)
+    with pytest.raises(UserError, match="silhouettes only"):
+        Objective(problem, views, 48, 2, get_profile("smoke", renderer="jax"))
+    assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", renderer="auto")).renderer,
+                      SilhouetteRenderer)
+    plain = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, window_weight=0.0, spp=16))
+             for r in ("auto", "mitsuba")]
+    assert isinstance(plain[0].renderer, EdgeRenderer)
+    losses = [np.mean([o(z, seed=s)[0] for s in range(4)]) for o in plain]
+    assert losses[0] == pytest.approx(losses[1], rel=0.1)
+
+
 def test_one_scene_serves_every_topology(building_views):
     """Buildings render every face of the level with the absent solids collapsed to a point: the
     loss and gradient equal those of the topology's own faces, and one Mitsuba scene (one set of
