@@ -179,15 +179,15 @@ def view_area(vertices, w2c, focal: float, faces, width: int, height: int, ss: i
     passes = []
     for coords, jit, size in ((xs, jitter[: height * ss], width * ss), (xs[:, ::-1], jitter[height * ss:], height * ss)):
         s = spans(jax.lax.stop_gradient(coords), faces, face_ok, jit, size, budget)
-        passes.append((coords, jit, s, covered_samples(s, jit.shape[0], size)))
-    area = 0.5 * (pixel_area(passes[0][3], ss) + pixel_area(passes[1][3], ss).T)
-    needed = jnp.maximum(passes[0][2]["needed"], passes[1][2]["needed"])
+        passes.append((coords, s, covered_samples(s, jit.shape[0], size)))
+    area = 0.5 * (pixel_area(passes[0][2], ss) + pixel_area(passes[1][2], ss).T)
+    needed = jnp.maximum(passes[0][1]["needed"], passes[1][1]["needed"])
     if pixel_grad_fn is None:
         return area, needed, 0.0
     g = pixel_grad_fn(jax.lax.stop_gradient(area))
     capacity = max(4 * (height + width) * ss, budget // 32)
     sur = 0.0
-    for (coords, jit, s, cov), grad in zip(passes, (g, g.T)):
+    for (coords, s, cov), grad in zip(passes, (g, g.T)):
         part, count = scan_surrogate(coords, s, cov, grad, ss, capacity)
         sur = sur + part
         needed = jnp.maximum(needed, jnp.where(count > capacity, 32 * count, 0))  # grow the budget
@@ -214,8 +214,10 @@ class EdgeRenderer:
         self.c2w, self.fov_x, self.width, self.height = np.asarray(c2w), fov_x, int(width), int(height)
         self.spp, self.ss = spp, supersampling(spp)
         self.w2c, self.focal = camera_arrays(self.c2w, fov_x, self.width)
+        self._w2c = jnp.asarray(self.w2c)
         self.spans = spans
         self._budgets: dict = {}
+        self._faces: dict = {}
 
     def _budget(self, key, vertices, faces: np.ndarray) -> int:
         """The span budget for meshes of ``key``: on first sight ``spans``, or a third more than
@@ -236,9 +238,18 @@ class EdgeRenderer:
                 self._budgets[key] = _round_up(need * 4 // 3 + 256)
         return self._budgets[key]
 
-    def _grown(self, key, needed: int) -> int:
-        self._budgets[key] = _round_up(int(needed * 1.25) + 1)
-        return self._budgets[key]
+    def _run(self, key, groups: np.ndarray, vertices, run):
+        """``run(faces, budget)`` -> (results..., spans needed per view) with the budget of ``key``
+        (:meth:`_budget`), grown and run again while the mesh needs more spans than it has; the
+        faces are put on the device once per ``key``."""
+        budget = self._budget(key, vertices, groups)
+        faces = self._faces.setdefault(key, jnp.asarray(groups))
+        while True:
+            *out, needed = run(faces, budget)
+            needed = int(np.max(needed))
+            if needed <= budget:
+                return out
+            budget = self._budgets[key] = _round_up(int(needed * 1.25) + 1)
 
     def _jitter(self, seed: int) -> jnp.ndarray:
         """Sample-grid jitter (n, H ss + W ss, 2) in [0, 1) for render ``seed``: each view's rows,
@@ -250,15 +261,10 @@ class EdgeRenderer:
         """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients)."""
         groups = _single_group(faces)
         vertices = jnp.asarray(np.asarray(vertices, np.float32).reshape(-1, 3))
-        key = ("render", groups.shape, groups[:16].tobytes(), groups[-16:].tobytes())
-        budget = self._budget(key, lambda: vertices, groups)
-        while True:
-            masks, needed = _render_fn(self.width, self.height, self.ss, budget)(
-                vertices, jnp.asarray(groups), jnp.asarray(self.w2c), self.focal, self._jitter(seed))
-            needed = int(np.max(needed))
-            if needed <= budget:
-                return np.asarray(masks, np.float32)
-            budget = self._grown(key, needed)
+        jitter = self._jitter(seed)
+        masks, = self._run(("render", *_faces_key(groups)), groups, lambda: vertices, lambda f, budget: _render_fn(
+            self.width, self.height, self.ss, budget)(vertices, f, self._w2c, self.focal, jitter))
+        return np.asarray(masks, np.float32)
 
     def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces, n_vertices: int,
                       targets: np.ndarray, seed: int = 0, highlight_targets: np.ndarray | None = None,
@@ -277,20 +283,18 @@ class EdgeRenderer:
         return self._call(vertex_fn, np.asarray(zs), faces, targets, list(seeds), batched=True)
 
     def _call(self, vertex_fn, zs, faces, targets, seeds, batched: bool):
+        """Losses (b,) and gradients (b, m) of ``zs`` (b, m), one compiled call (batched) or one per point."""
         groups = _single_group(faces)
-        key = (vertex_fn, groups.shape, groups[:16].tobytes(), groups[-16:].tobytes())
         zj = jnp.asarray(np.asarray(zs, np.float32))
-        budget = self._budget(key, lambda: vertex_fn(zj[0]), groups)
         targets = jnp.asarray(np.asarray(targets, np.float32))
         jitter = jnp.stack([self._jitter(s) for s in seeds])
-        while True:
+
+        def run(f, budget):
             fn = _loss_fn(vertex_fn, self.width, self.height, self.ss, budget, batched)
-            args = (jnp.asarray(groups), targets, jnp.asarray(self.w2c), self.focal)
-            loss, grad, needed = fn(zj, *args, jitter) if batched else fn(zj[0], *args, jitter[0])
-            needed = int(np.max(needed))
-            if needed <= budget:
-                break
-            budget = self._grown(key, needed)
+            args = (f, targets, self._w2c, self.focal)
+            return fn(zj, *args, jitter) if batched else fn(zj[0], *args, jitter[0])
+
+        loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(zj[0]), run)
         grad = np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(len(zs), -1)
         return np.asarray(loss, np.float64).reshape(len(zs)), grad
 
@@ -299,6 +303,11 @@ def _round_up(n: int) -> int:
     """``n`` rounded up to one of 8 sizes per octave (at most 12.5 % more work than asked for)."""
     step = max(1 << max(int(n).bit_length() - 4, 0), 1)
     return -(-int(n) // step) * step
+
+
+def _faces_key(faces: np.ndarray) -> tuple:
+    """A cheap key telling face arrays apart (shape and both ends)."""
+    return faces.shape, faces[:16].tobytes(), faces[-16:].tobytes()
 
 
 def _single_group(faces) -> np.ndarray:
