@@ -129,6 +129,11 @@ class Problem:
         """Topology key (discrete parameter values) of ``z``."""
         return self.generator.topology_key(self.spec.from_unit(z[: self.n_shape]))
 
+    def yaw_free(self, z: np.ndarray) -> bool:
+        """True if the object ``z`` looks the same turned about its vertical axis
+        (``Generator.yaw_symmetric``): its yaw is no part of its identity."""
+        return self.generator.yaw_symmetric(self.spec.from_unit(z[: self.n_shape]))
+
     def clip(self, z: np.ndarray) -> np.ndarray:
         """Project ``z`` into bounds; yaw is wrapped into [0, 2 pi)."""
         z = np.clip(np.asarray(z, np.float64), self.lower, self.upper)

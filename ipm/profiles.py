@@ -90,15 +90,13 @@ class DiffProfile:
     by at most this share: one view cannot tell a handle hidden behind the body from none."""
     spp: int = 4
     """Samples per pixel of the silhouette renders."""
-    renderer: str = "mitsuba"
+    renderer: str = "auto"
     """Silhouette renderer: ``jax`` (``ipm.render.edges``: scanline coverage and edge-sampling
     gradients at the scanlines' boundary crossings, one compiled function with the generator),
-    ``mitsuba`` (``ipm.render.silhouette``), or ``auto``: jax for silhouettes, Mitsuba where a
-    class-mask term (window masks) needs visibility. Mitsuba stays the default: dev cups, one
-    view, default profile, seeds 0-1, the jax renderer matched or beat it on cup_1, cup_d1, cup_d2
-    and cup_ext (0.967 / 0.966, 0.781 / 0.782, 0.971 / 0.968, 0.933 / 0.905) in a sixth of the
-    time, but on the bowl cup_2 its search ended in the wrong placement basin on 3 of seeds 0-3
-    (Mitsuba 0 of 4; 0.820 against 0.971), with gradients and images that agree with Mitsuba's."""
+    ``mitsuba`` (``ipm.render.silhouette``), or ``auto`` (the default): jax for silhouettes,
+    Mitsuba where a class-mask term (buildings' window masks) needs visibility. Dev cups, one view,
+    default profile, seeds 0-1: mean IoU jax 0.925, Mitsuba 0.914 (per case in the README), a
+    cup in a fifth of the time."""
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""

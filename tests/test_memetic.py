@@ -28,6 +28,9 @@ def test_merge_keeps_best_per_bin():
     pop = [mk(0.1, 3.0), mk(0.2, 1.0), mk(3.0, 2.0), mk(0.1, 0.5, key=(0,))]
     merged = merge_bins(pop, n_shape=1, bins=16)
     assert [i.best_loss for i in merged] == [0.5, 1.0, 2.0]
+    # an object that looks the same turned has one bin per topology: its turned twins merge
+    free = merge_bins(pop, n_shape=1, bins=16, yaw_free=lambda z: True)
+    assert [i.best_loss for i in free] == [0.5, 1.0]
 
 
 def test_rejected_steps_halve_the_rate_and_keep_the_best():

@@ -387,7 +387,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     final = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
-                    prepare=objective.match_area)
+                    prepare=objective.match_area, yaw_free=problem.yaw_free)
     state["stage"] = "polish"
     zs = [polish(problem, objective, ind.best_z, profile, on_eval, recorder("polish", state["res"]))
           for ind in finalists(problem, final, profile.refine_candidates)]
