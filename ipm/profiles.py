@@ -94,9 +94,10 @@ class DiffProfile:
     """Silhouette renderer: ``jax`` (``ipm.render.edges``: scanline coverage and edge-sampling
     gradients at the scanlines' boundary crossings, one compiled function with the generator),
     ``mitsuba`` (``ipm.render.silhouette``), or ``auto`` (the default): jax for silhouettes,
-    Mitsuba where a class-mask term (buildings' window masks) needs visibility. Dev cups, one view,
-    default profile, seeds 0-1: mean IoU jax 0.925, Mitsuba 0.914 (per case in the README), a
-    cup in a fifth of the time."""
+    Mitsuba where a class-mask term (buildings' window masks) needs visibility and for an
+    unknown camera (``ipm.photo``, tuned with Mitsuba, not yet validated with JAX on dev). Dev
+    cups, one view, default profile, seeds 0-1: mean IoU jax 0.925, Mitsuba 0.914 (per case in
+    the README), a cup in a fifth of the time."""
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""

@@ -41,6 +41,10 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
     if cache and "JAX_COMPILATION_CACHE_DIR" not in os.environ:
         os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
         os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+        # Jobs running side by side share the folder. JAX writes an entry in place and reads it
+        # unlocked unless the cache has a size limit; with one it locks the folder (filelock)
+        # around every read and write, so no process reads a half-written program.
+        os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(CACHE_MAX_BYTES))
         if "jax" in sys.modules:
             sys.modules["jax"].config.update("jax_compilation_cache_dir", cache)
     global _THREADS
@@ -52,6 +56,8 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
 
 
 _THREADS: int | None = None
+CACHE_MAX_BYTES = 4 << 30
+"""Size limit of JAX's persistent compilation cache (least recently used entries go first)."""
 
 
 def compile_cache_dir() -> str | None:

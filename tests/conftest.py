@@ -1,7 +1,13 @@
 """Shared fixtures: thread limits before JAX loads, Mitsuba variants actually installed, tiny cases."""
 from __future__ import annotations
 
-from ipm.runtime import configure_threads
+import os
+
+# no persistent compilation cache in the tests (cold, as on a fresh machine): twice a full run hung
+# for good in JAX deserialising a cached program at the same test, which passes alone
+os.environ.setdefault("IPM_JAX_CACHE", "off")
+
+from ipm.runtime import configure_threads  # noqa: E402
 
 configure_threads(2)  # before anything imports jax
 

@@ -229,3 +229,23 @@ def test_the_focal_sweep_finds_the_lowest_loss_over_the_field_of_view():
     assert all(np.min(np.abs(grid - h)) < 1e-9 for h in held)  # the focal gene stayed on its grid points
     known = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=replace(cam, fov_known=True))
     assert sweep_focal(known, z, profile, objective) is z
+
+
+def test_auto_renders_an_unknown_camera_with_mitsuba(tiny_case):
+    """``renderer: auto`` keeps the camera-withheld path on Mitsuba (its settings were tuned with
+    it; the JAX renderer is not validated there yet) and a known camera on the JAX renderer."""
+    from ipm.generators import get_generator
+    from ipm.methods.diff import Objective
+    from ipm.problem import Problem
+    from ipm.profiles import get_profile
+    from ipm.render.edges import EdgeRenderer
+    from ipm.render.silhouette import SilhouetteRenderer
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    photo = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"], fov_deg=40.0)
+    known = load_views(tiny_case / "transforms.json").first(1)
+    gen, prof = get_generator("dishes"), get_profile("smoke", renderer="auto")
+    assert isinstance(Objective(Problem.for_views(gen, photo), photo, 32, 0, prof).renderer, SilhouetteRenderer)
+    assert isinstance(Objective(Problem.for_views(gen, known), known, 32, 0, prof).renderer, EdgeRenderer)
+    jax_photo = Objective(Problem.for_views(gen, photo), photo, 32, 0, get_profile("smoke", renderer="jax"))
+    assert isinstance(jax_photo.renderer, EdgeRenderer)

@@ -45,3 +45,21 @@ def test_thread_count_follows_the_configured_threads(monkeypatch):
     assert rt.thread_count() == 1
     monkeypatch.setattr(rt, "_THREADS", None)
     assert rt.thread_count() == len(os.sched_getaffinity(0))
+
+
+def test_compilation_cache_is_locked_for_processes_side_by_side(tmp_path):
+    """Jobs share JAX's persistent compilation cache: it has a size limit, so JAX locks the folder
+    around reads and writes (a job that read a half-written program hung), and a second process
+    finds the first one's program there."""
+    code = ("from ipm.runtime import configure_threads; configure_threads(1)\n"
+            "import jax, jax.numpy as jnp, os\n"
+            "assert jax.config.jax_compilation_cache_max_size > 0\n"
+            "print(float(jax.jit(lambda x: jnp.cumsum(jnp.sin(x) @ x.T))(jnp.ones((200, 200))).sum()))\n")
+    env = {**os.environ, "IPM_JAX_CACHE": str(tmp_path), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env.pop("JAX_COMPILATION_CACHE_MAX_SIZE", None)
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env) for _ in range(2)]
+    assert all(r.returncode == 0 for r in runs), runs[-1].stderr[-2000:]
+    assert runs[0].stdout == runs[1].stdout
+    assert (tmp_path / ".lockfile").exists()
+    assert any(p.name.endswith("-cache") for p in tmp_path.iterdir())
