@@ -47,6 +47,8 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
         os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(CACHE_MAX_BYTES))
         if "jax" in sys.modules:
             sys.modules["jax"].config.update("jax_compilation_cache_dir", cache)
+            sys.modules["jax"].config.update("jax_compilation_cache_max_size",
+                                             int(os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"]))
     global _THREADS
     _THREADS = threads
     if "jax" in sys.modules:
