@@ -18,6 +18,16 @@ include: "pipelines/rules/evaluate.smk"
 include: "pipelines/rules/report.smk"
 
 
+# cheap steps run where Snakemake runs, not as cluster jobs
+localrules:
+    all,
+    reference,
+    reference_line,
+    table,
+    report,
+    report_check,
+
+
 rule all:
     input:
         get_final_output(),

@@ -171,3 +171,34 @@ def set_mitsuba_variant(device: str = "cpu", threads: int | None = None):
     if threads is not None and device == "cpu":
         dr.set_thread_count(max(1, int(threads)))
     return mi
+
+
+def machine_info(threads: int | None = None, device: str = "cpu") -> dict:
+    """Where a job ran, for the report's provenance: host, CPU model and count, OS, the job's
+    threads and device (and the GPU's name when it is cuda)."""
+    import platform
+    import socket
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    info = {"host": socket.gethostname(), "cpu": cpu, "cpus": os.cpu_count(), "os": platform.platform(terse=True),
+            "threads": threads, "device": device}
+    if device == "cuda":
+        import jax
+
+        info["gpu"] = ", ".join(d.device_kind for d in jax.devices())
+    return info
+
+
+def machine_line(info: dict) -> str:
+    """One line of :func:`machine_info` for a table cell."""
+    parts = [info.get("host", "?"), info.get("cpu", "?"), f"{info.get('cpus', '?')} CPUs", info.get("os", "?")]
+    if info.get("gpu"):
+        parts.append(info["gpu"])
+    return " · ".join(str(p) for p in parts)

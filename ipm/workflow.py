@@ -39,11 +39,16 @@ def synth_step(case: str, transforms: str, views: int, res: int, spp: int, layou
         synthesize(case, Path(transforms).parent, n_views=views, res=res, spp=spp, layout=layout)
 
 
-def reference_step(case: str, reference: str, log=None):
-    with _logged(log, 1):
+def reference_step(case: str, reference: str, gallery: str | None = None, log=None):
+    """The case's reference mesh and truth, and its gallery sheet (the report's first row)."""
+    with _logged(log, 1, mitsuba=gallery is not None):
         from ipm.synth import write_reference
 
         write_reference(case, Path(reference).parent)
+        if gallery:
+            from ipm.render.gallery import gallery_sheet
+
+            gallery_sheet(reference, reference, gallery)
 
 
 def prepare_step(method: str, generator: str, out: str, profile: str, seed: int, threads: int = 1, log=None):
@@ -63,35 +68,46 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
     with _logged(log, threads, mitsuba=True, device=device):
         from ipm.methods import METHODS
 
+        from ipm.io import write_json
+        from ipm.runtime import machine_info
+
         fn = METHODS[method]
         extra = {"generator": generator} if fn.uses_generator else {}
         if prepared:
             extra["prepared"] = prepared
+        Path(mesh).parent.mkdir(parents=True, exist_ok=True)
         fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra,
            **dict(settings or {}))
+        write_json(Path(mesh).parent / "machine.json", machine_info(threads, device))
 
 
 def reference_line_step(name: str, reference: str, truth: str, mesh: str, threads: int = 1, log=None):
     with _logged(log, threads):
+        from ipm.io import write_json
         from ipm.reference_lines import write_reference_line
+        from ipm.runtime import machine_info
 
+        Path(mesh).parent.mkdir(parents=True, exist_ok=True)
         write_reference_line(name, reference, Path(mesh).parent, truth=truth)
+        write_json(Path(mesh).parent / "machine.json", machine_info(threads))
 
 
-def evaluate_step(reference: str, truth: str, mesh: str, timing: str, metrics: str, preview: str, row: dict,
-                  seed: int, n_views: int, res: int, grid: int, threads: int = 1, log=None):
-    """Metrics of one reconstruction (with parameter recovery where the truth and the fit share a
-    generator), and ``row.json`` beside them (table label, kind, case split and class, seed, wall
-    time, note). A run that recorded a failure (``failed`` in its info.json) gets no metrics, only
-    the reason."""
-    with _logged(log, threads):
+def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: str, row: dict, seed: int,
+                  n_views: int, res: int, grid: int, gallery: str | None = None, threads: int = 1, log=None):
+    """Metrics of the reconstruction in folder ``run`` (with parameter recovery where the truth and
+    the fit share a generator), its gallery sheet, and ``row.json`` beside them (table label, kind,
+    case split and class, seed, wall time, the machine it ran on, note). A run that recorded a
+    failure (``failed`` in its info.json) gets no metrics, only the reason."""
+    with _logged(log, threads, mitsuba=gallery is not None):
         import json
 
         from ipm.cases import case_split
         from ipm.io import write_json
         from ipm.metrics.evaluate import evaluate_files, failure_files
+        from ipm.runtime import machine_line
 
-        folder = Path(mesh).parent
+        folder = Path(run)
+        mesh, timing = folder / "mesh.ply", folder / "timing.json"
         info = json.loads((folder / "info.json").read_text()) if (folder / "info.json").exists() else {}
         params = json.loads((folder / "params.json").read_text()) if (folder / "params.json").exists() else None
         case = json.loads(Path(truth).read_text())
@@ -100,10 +116,17 @@ def evaluate_step(reference: str, truth: str, mesh: str, timing: str, metrics: s
         else:
             evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview,
                            truth=case, params=params)
-        seconds = json.loads(Path(timing).read_text()).get("seconds")
+        if gallery:
+            from ipm.render.gallery import gallery_sheet
+
+            gallery_sheet(str(mesh), reference, gallery)
+        seconds = json.loads(timing.read_text()).get("seconds")
+        machine = machine_line(json.loads((folder / "machine.json").read_text())) \
+            if (folder / "machine.json").exists() else "not recorded"
         note = f"failed: {info['failed']}" if info.get("failed") else info.get("note", "")
         write_json(Path(metrics).parent / "row.json", {**row, "split": case_split(case), "generator": case["generator"],
-                                                       "seed": seed, "seconds": seconds, "note": note})
+                                                       "seed": seed, "seconds": seconds, "machine": machine,
+                                                       "note": note})
 
 
 def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, threads: int = 1, log=None):
@@ -121,9 +144,29 @@ def table_step(metrics: list[str], table: str, wide: str, summary: str, markdown
 
 
 def report_step(table: str, wide: str, summary: str, metrics: list[str], out: str, config: dict, input_dirs: dict,
-                log=None):
+                benchmarks: list[str] = (), log=None):
     with _logged(log, 1):
         from reports.build import build_report
 
         build_report(table_csv=table, wide_csv=wide, summary_csv=summary, metrics=metrics, out_html=out,
-                     config=config, input_dirs=input_dirs)
+                     config=config, input_dirs=input_dirs, benchmarks=list(benchmarks))
+
+
+def report_check_step(html: str, out_dir: str, rows: list[str], log=None):
+    """Open the report in headless Chromium: console errors, every row, images and 3D views;
+    screenshots and ``check.json`` into ``out_dir`` (written whole, or not at all)."""
+    with _logged(log, 1):
+        import shutil
+        import tempfile
+
+        from reports.browser import check_report
+
+        out = Path(out_dir)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        try:
+            check_report(html, str(tmp), rows)
+            shutil.rmtree(out, ignore_errors=True)
+            tmp.rename(out)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)

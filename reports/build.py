@@ -1,15 +1,20 @@
-"""The HTML report: Table 1, all metrics, IoU bars, per-case pictures and optimisation traces.
+"""The HTML report: Table 1 beside the paper's, every metric, per-case galleries and 3D views,
+convergence plots, timing and memory, provenance.
 
-Self-contained (images inlined as base64) so the page can be mailed or archived as one file.
+One self-contained file (images as base64, CSS, JS and the 3D models inline), so the page can be
+mailed or archived as it is. The data are gathered here into plain dicts and lists; the layout is
+the Jinja2 template ``templates/report.html.j2``.
 """
 from __future__ import annotations
 
 import base64
-import html
 import io
 import json
-import os
 import platform
+import subprocess
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib import metadata
 from pathlib import Path
 
 import matplotlib
@@ -21,61 +26,109 @@ import pandas as pd  # noqa: E402
 
 from ipm.io.atomic import atomic_path  # noqa: E402
 
-_CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;color:#222}
-table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
-th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}img{max-width:100%}
-.case{border-top:2px solid #ddd;margin-top:2em}.note{color:#666;font-size:0.9em}
-img.input{width:240px;image-rendering:pixelated}"""
+HERE = Path(__file__).parent
+PAPER_TABLE = HERE / "paper_table1.json"
+"""The paper's Table 1 (numbers copied from its LaTeX source, with its caption)."""
+MODEL_VIEWER = HERE / "js" / "node_modules" / "@google" / "model-viewer" / "dist" / "model-viewer.min.js"
+"""The <model-viewer> web component (``npm ci --prefix reports/js``), inlined once into the page."""
+MAX_MODEL_BYTES = 3_000_000
+"""Larger GLBs get no interactive 3D view (a note says so), to keep the page a sensible size."""
+PACKAGES = ("mitsuba", "drjit", "jax", "jaxlib", "numpy", "open3d", "pycolmap", "trimesh", "pandas", "snakemake")
+"""Packages whose versions the provenance lists (read from their metadata, nothing imported)."""
 
 
-def _img(path: Path | None = None, fig=None, cls: str = "") -> str:
-    if fig is not None:
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-        plt.close(fig)
-        data = buf.getvalue()
-    elif path is not None and path.exists():
-        data = path.read_bytes()
-    else:
-        return '<span class="note">(missing)</span>'
-    return f'<img class="{cls}" src="data:image/png;base64,{base64.b64encode(data).decode()}">'
+@dataclass(frozen=True)
+class MetricTable:
+    """One table of the report: a metric of table.csv laid out as Table 1."""
+
+    metric: str
+    """Column of table.csv and table_summary.csv."""
+    title: str
+    """Heading."""
+    higher_is_better: bool
+    """Direction in which a value wins the column's "best" mark."""
+    note: str
+    """What the number is, in a sentence."""
+    scale: float = 1.0
+    """Factor the values are shown multiplied by (three decimals must tell the methods apart)."""
+    caveat: str = ""
+    """A boolean column of table.csv: a cell over a run where it is False gets a dagger and says so."""
+    caveat_words: str = ""
+    """What a False in ``caveat`` means for the number."""
+
+
+TABLE1 = MetricTable("iou_mean", "64-view silhouette IoU", True,
+                     "the paper's metric: silhouettes from 64 Fibonacci-sphere views around the reference, "
+                     "IoU per view, mean over views")
+SIBLINGS = (
+    MetricTable("shape_iou", "Shape IoU after the best similarity alignment", True,
+                "the same 64-view IoU after turning, moving and scaling the reconstruction onto the reference: "
+                "what is left is the shape's error, the rest of the gap to the world-frame IoU is placement"),
+    MetricTable("viou", "Volumetric IoU", True,
+                "IoU of the occupancies on a voxel grid over the union of both bounding boxes; † a reconstruction "
+                "that is not watertight has no well-defined inside, its number is unreliable",
+                caveat="recon_watertight", caveat_words="not watertight, unreliable"),
+    MetricTable("chamfer_l1", "Chamfer-L1 × 100", False,
+                "mean nearest-neighbour distance between surface samples, both ways averaged, / r "
+                "(r: half the reference's bounding-box diagonal), times 100", 100.0),
+    MetricTable("chamfer_l2", "Chamfer-L2 × 1000", False,
+                "mean squared nearest-neighbour distance between surface samples, both ways summed, / r^2, "
+                "times 1000", 1000.0),
+    MetricTable("param_err", "Parameter error", False,
+                "mean unit-cube error of the generator's continuous parameters against the truth (in-family cases)"),
+    MetricTable("discrete_match", "Discrete parameters recovered", True,
+                "share of the generator's discrete parameters recovered exactly (in-family cases)"),
+    MetricTable("counts_exact", "Counts exact", True,
+                "share of runs with every count the input view shows exact (in-family cases)"),
+)
+"""The tables after Table 1, in page order."""
+
+
+# ---------------------------------------------------------------- pictures
+
+
+def _uri(data: bytes, mime: str) -> str:
+    return f"data:{mime};base64,{base64.b64encode(data).decode()}"
+
+
+def _png(path: Path) -> str | None:
+    """``path`` as a data URI, None if it is not there."""
+    return _uri(path.read_bytes(), "image/png") if path.is_file() else None
+
+
+def _fig(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return _uri(buf.getvalue(), "image/png")
 
 
 def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
-    """Loss per evaluation: the diff path's stages and resolutions, or the GA's tree levels
-    (leaves 0, root highest) with the best so far."""
-    fig, ax = plt.subplots(figsize=(6, 2.6))
-    if "stage" in trace:
-        for (stage, res), part in trace.groupby(["stage", "res"], sort=False):
-            ax.plot(part["eval"], part["loss"], ".", ms=2, label=f"{stage} {res}px")
-    else:
-        for level, part in trace.groupby("level"):
-            ax.plot(part["eval"], part["loss"], ".", ms=2, label=f"GA level {level}")
-        ax.plot(trace["eval"], trace["best"], "k-", lw=1, label="best")
-    ax.set_yscale("log")
-    ax.set_xlabel("evaluation")
-    ax.set_ylabel(f"{loss} loss")
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
+    """Loss against evaluations and, where the trace has ``seconds``, against wall time: the diff
+    path's stages and resolutions, or the GA's tree levels (leaves 0, root highest); the black line
+    is the best so far."""
+    xs = [("eval", "evaluation")] + ([("seconds", "wall time (s)")] if "seconds" in trace else [])
+    fig, axes = plt.subplots(1, len(xs), figsize=(4.6 * len(xs), 2.6), squeeze=False)
+    groups = trace.groupby(["stage", "res"], sort=False) if "stage" in trace else trace.groupby("level")
+    for ax, (x, name) in zip(axes[0], xs):
+        for key, part in groups:
+            ax.plot(part[x], part["loss"], ".", ms=2, label=f"{key[0]} {key[1]}px" if "stage" in trace
+                    else f"GA level {key}")
+        ax.plot(trace[x], trace["best"], "k-", lw=1, label="best so far")
+        if (trace["loss"] > 0).all():
+            ax.set_yscale("log")
+        ax.set_xlabel(name)
+        ax.set_ylabel(f"{loss} loss")
+        ax.grid(alpha=0.3)
+    axes[0, -1].legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
     return fig
-
-
-def _summary_html(summary: pd.DataFrame, split: str, metric: str) -> str:
-    """Per class: rows x (cases, aggregates) of ``metric`` as mean ± std (worst) over seeds."""
-    from ipm.table import table_blocks
-
-    blocks = table_blocks(summary[summary["split"] == split], metric)
-    if not blocks:
-        return "<p class='note'>(no cases in this split)</p>"
-    return "\n".join(f"<h3>{html.escape(title)}</h3><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in head)
-                     + "</tr>" + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
-                     + "</table>" for title, head, rows in blocks)
 
 
 def _aggregate_bars(summary: pd.DataFrame):
     """Class aggregates of the test split (mean over cases, error bar: std over seeds)."""
     agg = summary[summary["case"].str.contains("/", na=False) & (summary["split"] == "test")]
-    if agg.empty:
+    if agg.empty or agg["iou_mean"].isna().all():
         return None
     wide = agg.pivot_table(index="case", columns="label", values="iou_mean", aggfunc="first")
     err = agg.pivot_table(index="case", columns="label", values="iou_mean_std", aggfunc="first").reindex_like(wide)
@@ -88,92 +141,363 @@ def _aggregate_bars(summary: pd.DataFrame):
     return fig
 
 
+def _model(folder: Path, label: str) -> dict:
+    """The run's mesh for <model-viewer>: its mesh.glb, else its mesh.ply as GLB (flat grey),
+    gzipped and base64-encoded (``gz``; the page unpacks it when its 3D view is opened); or no
+    ``gz`` and why not (too large, empty, absent)."""
+    import gzip
+
+    import trimesh
+
+    if (folder / "mesh.glb").is_file():
+        data = (folder / "mesh.glb").read_bytes()
+    elif (folder / "mesh.ply").is_file():
+        mesh = trimesh.load(folder / "mesh.ply", force="mesh", process=False)
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            return {"gz": None, "note": "no 3D view: the mesh is empty"}
+        material = trimesh.visual.material.PBRMaterial(baseColorFactor=[0.55, 0.55, 0.58, 1.0], metallicFactor=0.0,
+                                                       roughnessFactor=0.8)
+        mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
+                               visual=trimesh.visual.TextureVisuals(material=material))
+        data = mesh.export(file_type="glb")
+    else:
+        return {"gz": None, "note": "no 3D view: the run wrote no mesh"}
+    mb = len(data) / 1e6
+    if len(data) > MAX_MODEL_BYTES:
+        return {"gz": None, "note": f"no 3D view: the model is {mb:.1f} MB (the page embeds models up to "
+                                    f"{MAX_MODEL_BYTES / 1e6:.0f} MB)"}
+    return {"gz": base64.b64encode(gzip.compress(data, 6, mtime=0)).decode(), "note": f"{mb:.2f} MB", "alt": label}
+
+
+# ---------------------------------------------------------------- tables
+
+
+def _text(value, fmt: str = "{:.3f}") -> str:
+    """A cell's text: numbers by ``fmt``, "-" where there is no value."""
+    if isinstance(value, (bool, np.bool_)):
+        return str(value)
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return fmt.format(value) if np.isfinite(value) else "-"
+    return "-" if value is None or (isinstance(value, str) and not value) else str(value)
+
+
+def _frame(frame: pd.DataFrame, fmt: str = "{:.3f}") -> dict:
+    """A table for the template: header and rows of text, numbers by ``fmt`` (whole numbers, such as
+    seeds and counts, without decimals), "-" where there is no value."""
+    numeric = [c for c in frame.columns if pd.api.types.is_numeric_dtype(frame[c])
+               and not pd.api.types.is_bool_dtype(frame[c])]
+    whole = {c for c in numeric if (frame[c].dropna() % 1 == 0).all()}
+    return {"head": [str(c) for c in frame.columns],
+            "rows": [[_text(v, "{:.0f}" if c in whole else fmt) for c, v in zip(frame.columns, row)]
+                     for row in frame.itertuples(index=False)]}
+
+
+def _failed(note) -> bool:
+    return isinstance(note, str) and note.startswith("failed")
+
+
+def _runs_where(df: pd.DataFrame, label: str, cases: list[str], which: pd.Series, words: str | None = None) -> str:
+    """``label``'s runs on ``cases`` where ``which`` holds, one per run with its note (or ``words``),
+    for a cell's ``title``."""
+    runs = df[(df["label"] == label) & df["case"].isin(cases) & which]
+    return "; ".join(f"{r.case} seed {int(r.seed)}: {words or r.note}" for r in runs.itertuples())
+
+
+FAMILIES = {"in": "made by the class's generator", "out": "built by independent code", "all": "all of them"}
+"""The aggregate columns' families (``<class>/<split>/<family>``), in words."""
+
+
+def _members(part: pd.DataFrame, column: str) -> list[str]:
+    """The cases a column of a block stands for: itself, or an aggregate's cases of its family."""
+    if "/" not in column:
+        return [column]
+    family = column.rsplit("/", 1)[-1]
+    cases = part[~part["case"].str.contains("/")].drop_duplicates("case")
+    return list(cases.loc[(family == "all") | (cases["family"] == family), "case"])
+
+
+def _metric_cell(line, metric: str, text: str, why: str, caveat: str) -> dict:
+    """One cell: ``text`` from ``table_blocks`` split into the value and its spread, the value for
+    sorting (``v``), classes (failed, n/a, partly failed, caveat) and as title the failure reasons
+    ``why`` and the runs the ``caveat`` is about."""
+    value = np.nan if line is None else float(getattr(line, metric))
+    main, _, rest = text.partition(" ")
+    cell = {"v": f"{value:.6g}" if np.isfinite(value) else "", "main": main, "rest": rest,
+            "title": "; ".join(t for t in (why, caveat) if t), "cls": ["caveat"] if caveat else []}
+    if line is None:
+        cell.update(main="", title="not run on every case of this column")
+    elif not np.isfinite(value):
+        cell.update(main="-" if why else "n/a", rest="", title=why or "no value (not applicable)",
+                    cls=["failed" if why else "na"])
+    elif why:
+        cell["cls"].append("partly-failed")
+    return cell
+
+
+def _shows(cell: dict) -> bool:
+    return bool(cell["v"]) or "failed" in cell["cls"]
+
+
+def _mark_best(rows: list[dict], higher_is_better: bool) -> None:
+    """Add ``best`` to the cells that hold their column's best value (at the three decimals shown);
+    reference lines are context and never win."""
+    for i in range(len(rows[0]["cells"]) if rows else 0):
+        contenders = [r["cells"][i] for r in rows if r["kind"] != "reference" and r["cells"][i]["v"]]
+        if not contenders:
+            continue
+        values = [round(float(c["v"]), 3) for c in contenders]
+        best = max(values) if higher_is_better else min(values)
+        for c, v in zip(contenders, values):
+            if v == best:
+                c["cls"].append("best")
+
+
+def metric_blocks(summary: pd.DataFrame, df: pd.DataFrame, spec: MetricTable, split: str) -> list[dict]:
+    """Per class, ``spec.metric`` on ``split`` as rows (method x views) x columns (cases, then the
+    class aggregates), laid out and worded by ``ipm.table.table_blocks``; each cell with its value
+    (for sorting), the best mark and, for failures, the reason. Rows and columns without any value
+    or failure (e.g. parameter errors of a baseline) are left out."""
+    from ipm.table import CLASS_NAMES, table_blocks
+
+    blocks = []
+    for gen in summary["generator"].dropna().unique():
+        part = summary[(summary["split"] == split) & (summary["generator"] == gen)]
+        if part.empty:
+            continue
+        scaled = [c for c in (spec.metric, f"{spec.metric}_std", f"{spec.metric}_worst") if c in part]
+        part = part.assign(**{c: part[c] * spec.scale for c in scaled})
+        [(_, header, text_rows)] = table_blocks(part, spec.metric)
+        columns = header[1:]
+        lines = {(r.label, r.case): r for r in part.itertuples()}
+        members = {c: _members(part, c) for c in columns}
+        failed = df["note"].map(_failed)
+        doubtful = (df[spec.caveat] == False) if spec.caveat in df else pd.Series(False, index=df.index)  # noqa: E712
+        rows = [{"label": label, "kind": part.loc[part["label"] == label, "kind"].iloc[0],
+                 "cells": [_metric_cell(lines.get((label, c)), spec.metric, text,
+                                        _runs_where(df, label, members[c], failed),
+                                        _runs_where(df, label, members[c], doubtful, f"† {spec.caveat_words}"))
+                           for c, text in zip(columns, texts)]}
+                for label, *texts in text_rows]
+        keep = [i for i in range(len(columns)) if any(_shows(r["cells"][i]) for r in rows)]
+        rows = [{**r, "cells": [r["cells"][i] for i in keep]} for r in rows if any(_shows(r["cells"][i]) for i in keep)]
+        if not rows:
+            continue
+        _mark_best(rows, spec.higher_is_better)
+        name = CLASS_NAMES.get(gen, gen)
+        blocks.append({"title": f"{name}, {split} split", "metric": spec.metric, "split": split, "rows": rows,
+                       "columns": [{"name": columns[i], "aggregate": "/" in columns[i],
+                                    "title": f"mean over the {split} {name} {FAMILIES[columns[i].rsplit('/', 1)[-1]]}"
+                                    if "/" in columns[i] else ""} for i in keep]})
+    return blocks
+
+
+def _recovery(summary: pd.DataFrame) -> dict | None:
+    rec = summary[summary["param_err"].notna() & ~summary["case"].str.contains("/", na=False)]
+    cols = ["label", "split", "case", "n_seeds", "param_err", "param_err_max", "discrete_match", "counts_exact",
+            "yaw_err_deg", "trans_err_rel", "size_err_pct"]
+    return None if rec.empty else _frame(rec[cols])
+
+
+def _benchmarks(paths: list[str]) -> pd.DataFrame:
+    """Snakemake's benchmark TSVs of the reconstructions, one line each with row, case and seed
+    from the path (``.../{row}/{case}/s{seed}.tsv``)."""
+    lines = []
+    for p in map(Path, paths):
+        if not p.is_file():
+            continue
+        b = pd.read_csv(p, sep="\t").apply(pd.to_numeric, errors="coerce")
+        for r in b.itertuples():
+            lines.append({"row": p.parent.parent.name, "case": p.parent.name, "seed": int(p.stem.lstrip("s")),
+                          "s": r.s, "max_rss": r.max_rss, "cpu_time": r.cpu_time})
+    return pd.DataFrame(lines, columns=["row", "case", "seed", "s", "max_rss", "cpu_time"])
+
+
+def _timing(df: pd.DataFrame, benchmarks: list[str]) -> dict:
+    """Per method: runs, the reconstruction's own clock (table.csv), the job's wall time, CPU time
+    and peak resident memory (Snakemake's benchmark files)."""
+    labels = dict(zip(df["row"], df["label"]))
+    own = df.groupby("label", sort=False)["seconds"].agg(["count", "mean", "max"])
+    bench = _benchmarks(benchmarks)
+    bench["label"] = bench["row"].map(lambda r: labels.get(r, r))
+    jobs = bench.groupby("label", sort=False).agg(jobs=("s", "size"), s_mean=("s", "mean"), s_max=("s", "max"),
+                                                  cpu_mean=("cpu_time", "mean"), rss_mean=("max_rss", "mean"),
+                                                  rss_peak=("max_rss", "max"))
+    table = own.join(jobs, how="outer").reindex(list(dict.fromkeys([*own.index, *jobs.index])))
+    table = table.reset_index().rename(columns={
+        "index": "method", "label": "method", "count": "runs", "mean": "reconstruction s (mean)",
+        "max": "reconstruction s (max)", "jobs": "benchmarked jobs", "s_mean": "job s (mean)", "s_max": "job s (max)",
+        "cpu_mean": "CPU s (mean)", "rss_mean": "RSS MB (mean)", "rss_peak": "peak RSS MB"})
+    return {"table": _frame(table, "{:.1f}"), "n_files": len(bench)}
+
+
+# ---------------------------------------------------------------- provenance
+
+
+def _git_commit() -> str:
+    """HEAD of the repository of the working directory, else of the one this code lies in (with a
+    mark when tracked files differ from it), else "unknown"."""
+    for where in (Path.cwd(), HERE.parent):
+        try:
+            head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
+                                  timeout=10, check=True)
+            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
+                                   capture_output=True, text=True, timeout=10, check=True)
+        except (OSError, subprocess.SubprocessError):
+            continue
+        return head.stdout.strip() + (" (with uncommitted changes)" if dirty.stdout.strip() else "")
+    return "unknown"
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version()}
+    for name in PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _machines(df: pd.DataFrame) -> list[dict]:
+    """Per machine (table.csv's ``machine``; "not recorded" where absent) the runs that ran there:
+    a line per method, "label: case (seeds ...), ..."."""
+    machine = df["machine"] if "machine" in df else pd.Series("not recorded", index=df.index)
+    machine = machine.fillna("not recorded").replace("", "not recorded")
+    out = []
+    for name, g in df.assign(machine=machine).groupby("machine", sort=False):
+        runs = [f"{label}: " + ", ".join(f"{case} (seed{'s' if len(c) > 1 else ''} "
+                                         f"{', '.join(str(int(s)) for s in c['seed'])})"
+                                         for case, c in lg.groupby("case", sort=False))
+                for label, lg in g.groupby("label", sort=False)]
+        out.append({"name": name, "n": len(g), "runs": runs})
+    return out
+
+
+def _provenance(df: pd.DataFrame, config: dict) -> dict:
+    import yaml
+
+    from ipm.runtime import machine_info, machine_line
+
+    plain = json.loads(json.dumps(config, default=str))
+    return {"versions": _versions(), "commit": _git_commit(), "config": yaml.safe_dump(plain, sort_keys=False),
+            "machines": _machines(df), "built_on": machine_line(machine_info()),
+            "built_at": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+
+
+# ---------------------------------------------------------------- per case
+
+
+def _number(line: pd.Series, key: str) -> float:
+    """``line[key]`` as a float, NaN where absent or not a number."""
+    try:
+        return float(line[key])
+    except (KeyError, TypeError, ValueError):
+        return np.nan
+
+
+def _shown_run(g: pd.DataFrame) -> pd.Series:
+    """The run whose pictures are shown: the first seed that did not fail (else the first)."""
+    ok = g[~g["note"].map(_failed)]
+    return (ok if len(ok) else g).iloc[0]
+
+
+def _run_card(g: pd.DataFrame, results: Path, models: bool) -> dict:
+    """One method on one case: its seeds' IoUs, the shown seed's metrics, pictures, trace and 3D view."""
+    first = _shown_run(g)
+    row, case, seed = first["row"], first["case"], int(first["seed"])
+    folder = results / "evaluate" / row / case / f"s{seed}"
+    recon = results / "reconstruct" / row / case / f"s{seed}"
+    card = {"label": first["label"], "kind": first["kind"], "seed": seed, "failed": _failed(first["note"]),
+            "note": first["note"] if isinstance(first["note"], str) else "",
+            "seeds": [{"seed": int(r.seed), "iou": _text(r.iou_mean), "failed": _failed(r.note),
+                       "note": r.note if isinstance(r.note, str) else ""} for r in g.itertuples()],
+            "metrics": [(name, _text(_number(first, key), fmt)) for name, key, fmt in (
+                ("IoU", "iou_mean", "{:.3f}"), ("shape IoU", "shape_iou", "{:.3f}"), ("vIoU", "viou", "{:.3f}"),
+                ("Chamfer-L1", "chamfer_l1", "{:.4f}"), ("Chamfer-L2", "chamfer_l2", "{:.4f}"),
+                ("triangles", "n_triangles", "{:,.0f}"), ("malformed", "malformed_share", "{:.1%}"),
+                ("seconds", "seconds", "{:.1f}"))],
+            "machine": first["machine"] if isinstance(first.get("machine"), str) else "not recorded",
+            "gallery": _png(folder / "gallery.png"), "preview": _png(folder / "preview.png"),
+            "parts": _png(folder / "parts.png") or _png(recon / "parts.png"), "trace": None, "pose": "",
+            "model": _model(recon, f"{first['label']} on {case}") if models else None}
+    info = json.loads((recon / "params.json").read_text()) if (recon / "params.json").is_file() else None
+    if (recon / "trace.csv").is_file():
+        trace = pd.read_csv(recon / "trace.csv")
+        if len(trace):
+            card["trace"] = _fig(_trace_plot(trace, (info or {}).get("loss", "silhouette")))
+    if info is not None and "pose" in info:
+        pose = {k: (round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v]) for k, v in info["pose"].items()}
+        extra = [f"{k} {info['params'][k]}" for k in ("has_handle",) if k in info.get("params", {})]
+        if "branch_graph_vertices" in info:
+            extra.append(f"branch graph {info['branch_graph_vertices']} vertices")
+        card["pose"] = "; ".join([f"pose {json.dumps(pose)}", *extra, f"{info.get('evaluations')} evaluations",
+                                  f"final loss {_text(info.get('final_loss'), '{:.5f}')}"])
+    return card
+
+
+def _reference_triangles(path: Path) -> str:
+    """The reference's triangle count, "" when its mesh is not at hand (not an input of the job)."""
+    import trimesh
+
+    return f"{len(trimesh.load(path, force='mesh', process=False).faces):,}" if path.is_file() else ""
+
+
+def _cases(df: pd.DataFrame, config: dict, input_dirs: dict, results: Path, models: bool) -> list[dict]:
+    out = []
+    for case in config.get("cases") or list(dict.fromkeys(df["case"])):
+        runs = df[df["case"] == case]
+        if runs.empty:
+            continue
+        first = runs.iloc[0]
+        synth = Path(input_dirs.get(case, results / "synth" / case))
+        out.append({"name": case, "split": first["split"], "generator": first["generator"], "family": first["family"],
+                    "rgb": _png(synth / "rgb" / "000.png"), "mask": _png(synth / "masks" / "000.png"),
+                    "reference": _png(results / "synth" / case / "gallery.png"),
+                    "reference_triangles": _reference_triangles(results / "synth" / case / "reference.ply"),
+                    "runs": [_run_card(g, results, models) for _, g in runs.groupby("row", sort=False)]})
+    return out
+
+
+# ---------------------------------------------------------------- the page
+
+
 def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: str, config: dict,
-                 input_dirs: dict | None = None, summary_csv: str | None = None) -> None:
-    """Write ``out_html`` from the tables and the per-case result folders; ``input_dirs`` maps a
-    case to the folder of its input views (relative to the working directory)."""
+                 input_dirs: dict | None = None, summary_csv: str | None = None,
+                 benchmarks: list[str] | None = None) -> None:
+    """Write ``out_html``, atomically, from the tables (``table_csv``, ``summary_csv``; the summary
+    is made from the long table when not given), the per-run folders beside them (results/evaluate,
+    results/reconstruct, results/synth), Snakemake's ``benchmarks`` of the reconstructions
+    (``logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv``) and ``config``; ``input_dirs`` maps a
+    case to the folder of its input views. ``wide_csv`` and ``metrics`` are the table step's other
+    outputs and inputs (the DAG's dependencies; the page reads the long table)."""
+    import jinja2
+
     from ipm.table import summary_table
 
     df = pd.read_csv(table_csv)
     summary = pd.read_csv(summary_csv) if summary_csv else summary_table(df)
+    if any(t.metric not in summary for t in (TABLE1, *SIBLINGS)):  # a summary written by an older version
+        summary = summary_table(df)
     results = Path(table_csv).parent
-    splits = df.drop_duplicates("case").groupby("split", sort=False)["case"].apply(list).to_dict()
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>IPM-Bench report</title>"
-             f"<style>{_CSS}</style></head><body><h1>IPM-Bench report</h1>",
-             f"<p class='note'>profile <b>{html.escape(str(config.get('profile')))}</b>, seeds "
-             f"{', '.join(map(str, config.get('seeds', [])))}; "
-             + "; ".join(f"{html.escape(k)} cases: {', '.join(map(html.escape, v))}" for k, v in splits.items())
-             + f"; report built on {html.escape(platform.platform())}, {os.cpu_count()} CPUs. IoU: mean over "
-             f"{config.get('evaluate', {}).get('views')} Fibonacci-sphere views (DESIGN.md); reference lines are "
-             "computed from the reference itself. The <b>test</b> split is scored, never tuned on; the <b>dev</b> "
-             "split is where defaults were chosen.</p>",
-             "<h2>Table 1: 64-view silhouette IoU, test split</h2><p class='note'>mean ± standard deviation over "
-             "seeds (worst seed); aggregates (class/split/family: in = made by the class's generator, out = built by "
-             "independent code): mean over the cases ± standard deviation over seeds of that mean (worst case)</p>",
-             _summary_html(summary, "test", "iou_mean")]
-    fig = _aggregate_bars(summary)
-    if fig is not None:
-        parts.append(_img(fig=fig))
-    parts += ["<h2>Shape IoU after the best similarity alignment, test split</h2><p class='note'>the same "
-              "64-view IoU after turning, moving and scaling the reconstruction onto the reference: what is left "
-              "is the shape's error, the rest of the gap to the world-frame IoU is placement</p>",
-              _summary_html(summary, "test", "shape_iou"),
-              "<h2>Dev split (defaults were tuned here)</h2>", _summary_html(summary, "dev", "iou_mean"),
-              _summary_html(summary, "dev", "shape_iou")]
-    rec = summary[summary["param_err"].notna() & ~summary["case"].str.contains("/", na=False)]
-    if not rec.empty:
-        cols = ["label", "split", "case", "n_seeds", "param_err", "param_err_max", "discrete_match", "counts_exact",
-                "yaw_err_deg", "trans_err_rel", "size_err_pct"]
-        parts += ["<h2>Parameter recovery (in-family cases)</h2><p class='note'>means over seeds: unit-cube error of "
-                  "the continuous parameters (mean, largest), share of discrete parameters recovered, share of runs "
-                  "with every count the input view shows exact (buildings: storeys, windows per facade seen), yaw error "
-                  "(degrees; - for objects that look the same turned), translation error / reference height, scale "
-                  "error (%)</p>", rec[cols].to_html(index=False, float_format="%.3f", na_rep="-")]
-    parts += ["<h2>Wall time per method</h2><p class='note'>seconds per reconstruction, one thread each, "
-              "mean over cases and seeds</p>",
-              df.groupby("label", sort=False)["seconds"].agg(["mean", "min", "max"]).to_html(float_format="%.1f"),
-              "<details><summary>All runs, all metrics</summary>",
-              df.drop(columns=["row", "kind"]).to_html(index=False, float_format="%.4f", na_rep="-"), "</details>"]
-    for case in config.get("cases", []):
-        runs = df[df["case"] == case]
-        split = runs["split"].iloc[0] if len(runs) else "?"
-        parts.append(f"<div class='case'><h2>{html.escape(case)} <span class='note'>({html.escape(split)})</span></h2>")
-        synth = Path((input_dirs or {}).get(case, results / "synth" / case))
-        parts.append("<p>input view and its mask</p>" + _img(synth / "rgb" / "000.png", cls="input") + " "
-                     + _img(synth / "masks" / "000.png", cls="input"))
-        for (row, label), g in runs.groupby(["row", "label"], sort=False):
-            per_seed = ", ".join(f"seed {int(r.seed)}: " + ("-" if pd.isna(r.iou_mean) else f"{r.iou_mean:.3f}")
-                                 for r in g.itertuples())
-            first = g.iloc[0]
-            seed_dir = f"s{int(first['seed'])}"
-            folder = results / "evaluate" / row / case / seed_dir
-            if isinstance(first["note"], str) and first["note"].startswith("failed"):
-                parts.append(f"<h3>{html.escape(label)}: - ({html.escape(first['note'])})</h3>")
-                continue
-            note = f" ({html.escape(first['note'])})" if isinstance(first["note"], str) and first["note"] else ""
-            shape = "" if pd.isna(first.get("shape_iou")) else f", shape IoU {first['shape_iou']:.3f}"
-            parts.append(f"<h3>{html.escape(label)}: IoU {per_seed}{note}</h3><p class='note'>pictures of seed "
-                         f"{int(first['seed'])}: IoU {first['iou_mean']:.3f}{shape}, volumetric IoU "
-                         f"{first['viou']:.3f}</p>")
-            parts.append(_img(folder / "preview.png"))
-            recon = results / "reconstruct" / row / case / seed_dir
-            if (recon / "parts.png").exists():
-                parts.append("<p class='note'>reference (top) and reconstruction (bottom), one colour per part</p>"
-                             + _img(recon / "parts.png"))
-            info = json.loads((recon / "params.json").read_text()) if (recon / "params.json").exists() else None
-            if (recon / "trace.csv").exists():
-                loss = (info or {}).get("loss", "silhouette")
-                parts.append(_img(fig=_trace_plot(pd.read_csv(recon / "trace.csv"), loss)))
-            if info is not None:
-                pose = {k: (round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v])
-                        for k, v in info["pose"].items()}
-                extra = [f"{k} {info['params'][k]}" for k in ("has_handle",) if k in info["params"]]
-                if "branch_graph_vertices" in info:
-                    extra.append(f"branch graph {info['branch_graph_vertices']} vertices")
-                parts.append(f"<p class='note'>pose {html.escape(json.dumps(pose))}; "
-                             + "".join(f"{html.escape(e)}; " for e in extra)
-                             + f"{info['evaluations']} evaluations, final loss {info['final_loss']:.5f}</p>")
-        parts.append("</div>")
-    parts.append("</body></html>")
+    models = MODEL_VIEWER.is_file()
+    bars = _aggregate_bars(summary)
+    cases = _cases(df, config, input_dirs or {}, results, models)
+    embedded = sum(1 for c in cases for r in c["runs"] if r["model"] and r["model"]["gz"])
+    splits = ("test", "dev")
+    page = {
+        "config": config, "cases_by_split": df.drop_duplicates("case").groupby("split", sort=False)["case"].apply(list),
+        "table1": {s: metric_blocks(summary, df, TABLE1, s) for s in splits}, "table1_spec": TABLE1,
+        "siblings": [{"spec": t, **{s: metric_blocks(summary, df, t, s) for s in splits}}
+                     for t in SIBLINGS if t.metric in summary],
+        "paper": json.loads(PAPER_TABLE.read_text()), "bars": _fig(bars) if bars is not None else None,
+        "recovery": _recovery(summary), "timing": _timing(df, benchmarks or []), "cases": cases,
+        "runs": _frame(df.drop(columns=["row", "kind"]), "{:.4f}"), "provenance": _provenance(df, config),
+        "model_viewer": MODEL_VIEWER.read_text().replace("</script", "<\\/script") if models and embedded else None,
+        "models_off": None if models else f"3D views off: {MODEL_VIEWER.relative_to(HERE.parent)} is missing "
+                                          "(npm ci --prefix reports/js)",
+    }
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(HERE / "templates"), autoescape=True,
+                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    html = env.get_template("report.html.j2").render(**page)
     with atomic_path(out_html) as tmp:
-        tmp.write_text("\n".join(parts))
+        tmp.write_text(html)

@@ -6,8 +6,10 @@ cd "$(dirname "$0")/.."
 
 # Debian packages: libLLVM 19 for Dr.Jit's LLVM backend (14/15 crash), libusb for open3d,
 # libgl/libgomp for open3d's and pycolmap's shared objects.
-# Node.js and npm run the Khronos glTF validator in the tests (tests/gltf).
-pkgs="libllvm19 libusb-1.0-0 libgomp1 libgl1 libegl1"
+# Node.js and npm run the Khronos glTF validator in the tests (tests/gltf) and install the report's
+# 3D viewer (reports/js); Chromium (headless) opens the report in its browser test; rsync
+# moves files for the storage plugin (jobs without a shared working directory).
+pkgs="libllvm19 libusb-1.0-0 libgomp1 libgl1 libegl1 chromium rsync"
 command -v npm >/dev/null 2>&1 || pkgs="$pkgs nodejs npm"
 missing=""
 for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
@@ -20,6 +22,7 @@ fi
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e ".[test]"
+.venv/bin/python -m pip install -q -e ".[test]" -c requirements.lock
 npm ci --prefix tests/gltf --no-audit --no-fund --silent
+npm ci --prefix reports/js --no-audit --no-fund --silent
 echo "setup done: activate with 'source .venv/bin/activate'"

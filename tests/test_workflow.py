@@ -32,7 +32,8 @@ def test_dry_run_plans_every_stage(config, tmp_path):
     res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
                     "--directory", str(tmp_path))
     assert res.returncode == 0, res.stdout + res.stderr
-    for rule in ("reference", "synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report"):
+    for rule in ("reference", "synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report",
+                 "report_check"):
         assert f"rule {rule}:" in res.stdout
 
 
@@ -57,66 +58,116 @@ def test_unknown_method_is_refused(tmp_path):
 def test_diff_on_a_tree_case_is_refused(tmp_path):
     rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1}]\n")
     assert rc != 0 and "case tree_1: method 'diff' needs a differentiable generator" in out
-    rc, out = dry_run(tmp_path, "cases: [cup_1]\nmethods: [{name: ga, views: 1, cases: [tree_1]}]\n")
-    assert rc != 0 and "lists case 'tree_1', which is not in cases" in out
+    rc, out = dry_run(tmp_path, "cases: [cup_1]\nmethods: [{name: ga, views: 1, cases: [tree_9]}]\n")
+    assert rc != 0 and "tree_9" in out  # an unknown case in a row's list is refused
 
 
-def test_rows_run_on_their_cases_and_the_ga_statistics_once_per_generator(tmp_path):
-    rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\n"
-                                "methods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1}]\n")
-    assert rc == 0, out
-    assert "results/reconstruct/diff_1v/cup_1/s0/mesh.ply" in out and "diff_1v/tree_1" not in out
-    for gen in ("dishes", "trees"):
-        assert out.count(f"output: results/prepare/ga/{gen}/s0.json") == 1
-    assert "results/reconstruct/ga_1v/tree_1/s0/mesh.ply" in out and "results/reconstruct/ga_1v/cup_1/s0/mesh.ply" in out
+def test_config_cases_narrow_every_row(tmp_path):
+    """``--config 'cases=[cup_1]'`` on the default config runs just that case, though the rows
+    keep their own case lists (they are intersected with ``cases``)."""
+    res = snakemake("-n", "--cores", "1", "--configfile", str(ROOT / "pipelines/config/default.yaml"),
+                    "--directory", str(tmp_path), "--config", "cases=[cup_1]")
+    out = res.stdout + res.stderr
+    assert res.returncode == 0, out
+    runs = {line.split("results/reconstruct/")[1].split("/")[1] for line in out.splitlines()
+            if "output: results/reconstruct/" in line}
+    assert runs == {"cup_1"}
+    for row in ("diff_1v", "diffsdf_6v", "colmap_sfm_16v", "visual_hull_6v", "line_convex_hull"):
+        assert f"results/reconstruct/{row}/cup_1/s0" in out
+    assert "ga_1v" not in out  # the GA row lists only trees
 
 
-def test_seeded_rows_run_per_seed_and_unseeded_ones_once(tmp_path):
-    rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\nseeds: [3, 4]\n"
-                                "methods: [{name: ga, views: 1, cases: [tree_1]}, {name: visual_hull, views: 2},\n"
-                                "          {name: diffsdf, views: 2, seeds: [5]}]\n")
-    assert rc == 0, out
-    for seed in (3, 4):  # the GA and its statistics once per seed
-        assert f"results/reconstruct/ga_1v/tree_1/s{seed}/mesh.ply" in out
-        assert out.count(f"output: results/prepare/ga/trees/s{seed}.json") == 1
-    assert "visual_hull_2v/cup_1/s3/mesh.ply" in out and "visual_hull_2v/cup_1/s4/" not in out  # no random choices
-    assert "diffsdf_2v/tree_1/s5/mesh.ply" in out and "diffsdf_2v/tree_1/s3/" not in out  # the row's own seeds
-    assert "line_convex_hull/tree_1/s3/mesh.ply" in out and "line_convex_hull/tree_1/s4/" not in out
-
-
-def test_device_cuda_declares_a_gpu_per_reconstruction(tmp_path):
-    """``device: cuda`` reaches the reconstruct jobs, each declaring one GPU (so ``--resources
-    gpu=N`` bounds how many run at once); the default runs them on the CPU without one."""
-    rc, out = dry_run(tmp_path, "cases: [cup_1]\ndevice: cuda\nmethods: [{name: diff, views: 1}]\n")
-    assert rc == 0, out
+@pytest.mark.parametrize("profile", ["slurm", "kubernetes"])
+def test_cluster_profiles_dry_run(profile, tmp_path):
+    """The executor profiles plan the default DAG: SLURM on a shared filesystem, Kubernetes with
+    every file going through the storage provider; reconstructions ask for a GPU with cuda."""
+    res = snakemake("-n", "--profile", str(ROOT / "profiles" / profile), "--configfile",
+                    str(ROOT / "pipelines/config/default.yaml"), "--directory", str(tmp_path), "--config", "device=cuda")
+    out = res.stdout + res.stderr
+    assert res.returncode == 0, out[-3000:]
     job = out[out.index("rule reconstruct:"):]
     job = job[: job.index("\n\n")]
-    assert "gpu=1" in job
-    rc, out = dry_run(tmp_path, "cases: [cup_1]\nmethods: [{name: diff, views: 1}]\n")
-    job = out[out.index("rule reconstruct:"):]
-    assert "gpu=1" not in job[: job.index("\n\n")]
-    rc, out = dry_run(tmp_path, "cases: [cup_1]\ndevice: tpu\n")
-    assert rc != 0 and "tpu" in out
+    assert "gpu=1" in job and "runtime=60" in job and "mem_mb=4000" in job
+    if profile == "kubernetes":
+        assert "(send to storage)" in job and "gpu_manufacturer=nvidia" in job
+    else:
+        assert "cpus_per_task=1" in job and "(send to storage)" not in job
 
 
-def test_tagged_entries_make_their_own_rows(tmp_path):
-    """An ablation: the same method and view count twice, told apart by a tag (the GA with labels
-    from the photo's colours and from the label images)."""
-    rows = ("methods: [{name: ga, views: 1, settings: {labels: rgb}},\n"
-            "          {name: ga, views: 1, tag: labelimages, settings: {labels: semantic}}]\n")
-    rc, out = dry_run(tmp_path, "cases: [tree_1]\n" + rows)
-    assert rc == 0, out
-    assert "results/reconstruct/ga_1v/tree_1/s0/mesh.ply" in out
-    assert "results/reconstruct/ga_1v_labelimages/tree_1/s0/mesh.ply" in out
-    rc, out = dry_run(tmp_path, "cases: [tree_1]\nmethods: [{name: ga, views: 1}, {name: ga, views: 1}]\n")
-    assert rc != 0 and "two methods entries make the row ga_1v; give one a tag" in out
+def test_config_readme_names_every_key():
+    """pipelines/config/README.md documents every key of the config schema."""
+    import yaml
+
+    schema = yaml.safe_load((ROOT / "pipelines/schemas/config.schema.yaml").read_text())
+    doc = (ROOT / "pipelines/config/README.md").read_text()
+    keys = list(schema["properties"])
+    keys += [f"methods[].{k}" for k in schema["properties"]["methods"]["items"]["properties"]]
+    for section in ("synth", "evaluate"):
+        keys += list(schema["properties"][section]["properties"])
+    missing = [k for k in keys if f"`{k}`" not in doc]
+    assert not missing, f"undocumented config keys: {missing}"
+
+
+def test_workflow_is_snakefmt_clean():
+    files = [ROOT / "Snakefile", *sorted((ROOT / "pipelines/rules").glob("*.smk"))]
+    res = subprocess.run([sys.executable, "-m", "snakefmt", "--check", *map(str, files)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+STORAGE = ("--default-storage-provider", "fs", "--shared-fs-usage", "none")
+"""Run jobs as on a cluster without a shared working directory: every input comes from the storage
+(here a folder) into a local copy and only declared outputs go back, so a file a job writes beside
+its outputs without declaring it stays behind in the local copies (and never reaches a job on
+another machine that would read it)."""
+
+
+def undeclared(workdir: Path) -> list[str]:
+    """What a storage run left behind other than logs and Snakemake's own files: files written
+    beside declared outputs (in the local storage copies) or into the working directory."""
+    local = workdir / ".snakemake" / "storage"
+    out = [str(p.relative_to(local)) for p in local.rglob("*") if p.is_file() and "/logs/" not in str(p)]
+    return sorted(out + [p.name for p in workdir.iterdir() if p.name != ".snakemake"])
+
+
+def test_storage_run_catches_undeclared_files(tmp_path):
+    """The check the smoke run relies on: a rule that writes a file beside its output without
+    declaring it leaves it behind, where :func:`undeclared` finds it; declared files do not."""
+    (tmp_path / "Snakefile").write_text(
+        'rule all:\n    input: "r/b.txt"\n\n'
+        'rule a:\n    output: "r/a.txt"\n    log: "logs/a.log"\n'
+        '    shell: "echo a > {output}; echo x > $(dirname {output})/extra.txt"\n\n'
+        'rule b:\n    input: "r/a.txt"\n    output: "r/b.txt"\n    shell: "cat {input} > {output}"\n')
+    args = ["--snakefile", str(tmp_path / "Snakefile"), "--cores", "1", "--directory", str(tmp_path / "work"),
+            *STORAGE, "--default-storage-prefix", str(tmp_path / "store")]
+    res = subprocess.run([*SNAKEMAKE, *args], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert (tmp_path / "store/r/b.txt").is_file() and not (tmp_path / "store/r/extra.txt").exists()
+    left = undeclared(tmp_path / "work")
+    assert len(left) == 1 and left[0].endswith("/r/extra.txt"), left
 
 
 @pytest.mark.slow
 def test_smoke_run_of_the_whole_dag(tmp_path):
-    res = snakemake("--cores", "2", "--configfile", str(ROOT / "pipelines/config/smoke.yaml"),
-                    "--directory", str(tmp_path))
+    """The whole DAG on the smoke config, run as on a cluster without a shared working directory
+    (:data:`STORAGE`): every job finds the files it declared and leaves nothing undeclared behind;
+    then the report's browser check and ``snakemake --report``."""
+    work, store = tmp_path / "work", tmp_path / "store"
+    args = ("--configfile", str(ROOT / "pipelines/config/smoke.yaml"), "--directory", str(work), *STORAGE,
+            "--default-storage-prefix", str(store))
+    res = snakemake("--cores", "2", *args)
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
+    assert undeclared(work) == []
+    res = snakemake("--report", str(tmp_path / "report.zip"), *args)
+    assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
+    import zipfile
+
+    names = zipfile.ZipFile(tmp_path / "report.zip").namelist()
+    assert any(n.endswith("/table.csv") for n in names) and any(n.endswith("/index.html") for n in names)
+    check = json.loads((store / "results/report/screenshots/check.json").read_text())
+    assert check["screenshots"] and all((store / "results/report/screenshots" / n).is_file()
+                                        for n in check["screenshots"])
+    tmp_path = store  # the results as the storage holds them
     table = pd.read_csv(tmp_path / "results/table.csv")
     cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet", "building_1"}
     assert set(table["case"]) == cases
@@ -160,10 +211,13 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     html = (tmp_path / "results/report/index.html").read_text()
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
     assert "test split" in html and "Parameter recovery" in html
-    assert (tmp_path / "results/reconstruct/diff_1v/cup_1/s1/parts.png").is_file()
+    assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/parts.png").is_file()
+    assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/gallery.png").is_file()
+    assert (tmp_path / "results/synth/cup_1/gallery.png").is_file()
+    assert table["machine"].notna().all() and not table["machine"].eq("not recorded").any()
     assert (tmp_path / "results/synth/building_1/hemi1/semantic/000.png").is_file()  # window masks for the diff path
     assert json.loads((tmp_path / "results/reconstruct/diff_1v/building_1/s0/params.json").read_text())["generator"] == "buildings"
-    assert (tmp_path / "results/reconstruct/ga_1v/tree_1/s0/parts.png").is_file()
+    assert (tmp_path / "results/evaluate/ga_1v/tree_1/s0/parts.png").is_file()
     assert (tmp_path / "results/prepare/ga/trees/s0.json").is_file()
     assert (tmp_path / "logs/benchmark/reconstruct/diff_1v/cup_1/s0.tsv").is_file()
     wide = pd.read_csv(tmp_path / "results/table_iou.csv", index_col=0)

@@ -1,7 +1,6 @@
 # Config validation and the helpers that turn the config into targets and parameters.
 from snakemake.utils import validate
 
-
 validate(config, schema="../schemas/config.schema.yaml", set_default=True)
 
 from ipm.methods import METHODS, row_label
@@ -20,11 +19,19 @@ def row_id(m):
 wildcard_constraints:
     seed="[0-9]+",
     case="[A-Za-z0-9_]+",
+    row="[A-Za-z0-9_]+",
+    name="[a-z0-9_]+",
+    method="[a-z0-9_]+",
+    generator="[a-z0-9_]+",
+    layout="hemi|ring",
+    n="[0-9]+",
 
 
 def method_cases(m):
-    """Cases a methods entry runs on: its own ``cases`` list, else all of the config's."""
-    return m.get("cases", config["cases"])
+    """Cases a methods entry runs on: those of its own ``cases`` list that the config's ``cases``
+    has (so ``--config 'cases=[cup_1]'`` narrows every row), else all of the config's.
+    """
+    return [c for c in m.get("cases", config["cases"]) if c in config["cases"]]
 
 
 def case_seeds(case):
@@ -43,8 +50,9 @@ def method_seeds(m, case):
 
 
 def check_methods():
-    """Refuse, when the DAG is built, unknown method names, cases outside the config's list and
-    generators a method cannot fit (the diff path on trees), each with one line saying why."""
+    """Refuse, when the DAG is built, unknown method names, unknown case names in a row's list and
+    generators a method cannot fit (the diff path on trees), each with one line saying why.
+    """
     from ipm.errors import UserError
     from ipm.methods import check_generator
     from ipm.synth import load_case
@@ -60,9 +68,9 @@ def check_methods():
     for m in config["methods"]:
         if m["name"] not in METHODS:
             raise ValueError(f"config: unknown method {m['name']!r} (known: {', '.join(METHODS.names())})")
+        for case in m.get("cases", []):
+            load_case(case)  # an unknown name is refused even where cases leaves it out
         for case in method_cases(m):
-            if case not in config["cases"]:
-                raise ValueError(f"config: method {m['name']} lists case {case!r}, which is not in cases")
             if METHODS[m["name"]].uses_generator:
                 try:
                     check_generator(m["name"], load_case(case)["generator"])
@@ -99,7 +107,7 @@ def case_generator(wildcards):
 def row_info(wildcards):
     """Label and kind of a table row: ours ("method", takes a generator), a baseline, a reference line."""
     if wildcards.row.startswith("line_"):
-        name = wildcards.row[len("line_"):]
+        name = wildcards.row[len("line_") :]
         return {"label": REFERENCE_LINES[name].label, "kind": "reference"}
     m = method_of(wildcards)
     kind = "method" if METHODS[m["name"]].uses_generator else "baseline"
@@ -112,9 +120,10 @@ def views_dir(name, views, case):
     return f"results/synth/{case}/{METHODS[name].layout}{views}"
 
 
-def method_transforms(wildcards):
+def method_views_dir(wildcards):
+    """Folder of the views (transforms.json, rgb/, masks/, semantic/) a row reads on a case."""
     m = method_of(wildcards)
-    return f"{views_dir(m['name'], m['views'], wildcards.case)}/transforms.json"
+    return views_dir(m["name"], m["views"], wildcards.case)
 
 
 def method_inputs(wildcards):
@@ -123,11 +132,21 @@ def method_inputs(wildcards):
     per generator and seed, so the spread over seeds includes theirs; with ``prepare_seed`` set, one
     file made with that seed serves every seed)."""
     m = method_of(wildcards)
-    out = {"transforms": method_transforms(wildcards)}
+    out = {"views": method_views_dir(wildcards)}
     if METHODS[m["name"]].prepare is not None:
         seed = wildcards.seed if config["prepare_seed"] is None else config["prepare_seed"]
         out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}/s{seed}.json"
     return out
+
+
+RECONSTRUCT_MINUTES = {"smoke": 20, "default": 60, "paper": 24 * 60}
+"""Runtime limit of one reconstruction per profile, for cluster executors (the default profile's
+slowest job, a GA tree, took about 4 minutes on a 2-core machine; the paper's budgets take hours)."""
+
+
+GPU = {"gpu": 1} if config["device"] == "cuda" else {}
+"""The reconstructions' GPU request: one each with device cuda (bounded by --resources gpu=N
+locally, a GPU per job on a cluster), none on the CPU."""
 
 
 def synth_res(wildcards):
@@ -145,15 +164,6 @@ def input_view_dirs():
     return out
 
 
-def all_metrics():
-    """Metrics files of every (row, case, seed): method rows on their cases and seeds, reference
-    lines (no random choices) on every case they apply to, with the case's first seed."""
-    out = [f"results/evaluate/{row_id(m)}/{case}/s{seed}/metrics.json"
-           for m in config["methods"] for case in method_cases(m) for seed in method_seeds(m, case)]
-    return out + [f"results/evaluate/line_{name}/{case}/s{case_seeds(case)[0]}/metrics.json"
-                  for name in config["reference_lines"] for case in config["cases"] if line_applies(name, case)]
-
-
 def line_applies(name, case):
     """Whether reference line ``name`` applies to ``case`` (the reseeded truth: stochastic in-family cases)."""
     from ipm.synth import load_case
@@ -161,12 +171,73 @@ def line_applies(name, case):
     return REFERENCE_LINES[name].applies(load_case(case))
 
 
+def all_runs():
+    """Every (row id, case, seed) of the table: method rows on their cases and seeds, reference
+    lines (no random choices) on every case they apply to, with the case's first seed.
+    """
+    out = [
+        (row_id(m), case, seed) for m in config["methods"] for case in method_cases(m) for seed in method_seeds(m, case)
+    ]
+    return out + [
+        (f"line_{name}", case, case_seeds(case)[0])
+        for name in config["reference_lines"]
+        for case in config["cases"]
+        if line_applies(name, case)
+    ]
+
+
+def run_files(pattern, methods_only=False):
+    """``pattern`` (with {row}, {case}, {seed}) for every run, or every run of a method row."""
+    return [
+        pattern.format(row=r, case=c, seed=s) for r, c, s in all_runs() if not (methods_only and r.startswith("line_"))
+    ]
+
+
+def all_metrics():
+    """Metrics files of every run."""
+    return run_files("results/evaluate/{row}/{case}/s{seed}/metrics.json")
+
+
 def all_parts_previews():
     """Part previews of the rows that fit a generator (baselines have no parts)."""
-    return [f"results/reconstruct/{row_id(m)}/{case}/s{seed}/parts.png"
-            for m in config["methods"] if METHODS[m["name"]].uses_generator
-            for case in method_cases(m) for seed in method_seeds(m, case)]
+    return [
+        f"results/evaluate/{row_id(m)}/{case}/s{seed}/parts.png"
+        for m in config["methods"]
+        if METHODS[m["name"]].uses_generator
+        for case in method_cases(m)
+        for seed in method_seeds(m, case)
+    ]
+
+
+def report_inputs():
+    """Everything the report reads: per run its metrics, table line, pictures and result folder
+    (trace, parameters, GLB), the reconstructions' benchmark files, per case the input views and
+    the reference's pictures."""
+    return {
+        "metrics": all_metrics(),
+        "rows": run_files("results/evaluate/{row}/{case}/s{seed}/row.json"),
+        "previews": run_files("results/evaluate/{row}/{case}/s{seed}/preview.png"),
+        "galleries": run_files("results/evaluate/{row}/{case}/s{seed}/gallery.png"),
+        "parts": all_parts_previews(),
+        "runs": run_files("results/reconstruct/{row}/{case}/s{seed}"),
+        "benchmarks": run_files("logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv", methods_only=True),
+        "views": sorted(set(input_view_dirs().values())),
+        "references": [f"results/synth/{case}/{name}" for case in config["cases"]
+                       for name in ("gallery.png", "reference.ply")],
+    }
+
+
+def table_labels():
+    """Labels of every row the config asks for, in the table's order (the report check looks for each)."""
+    from types import SimpleNamespace
+
+    return list(dict.fromkeys(row_info(SimpleNamespace(row=r))["label"] for r, _, _ in all_runs()))
 
 
 def get_final_output():
-    return ["results/table.csv", "results/table_iou.csv", "results/report/index.html"]
+    return [
+        "results/table.csv",
+        "results/table_iou.csv",
+        "results/report/index.html",
+        "results/report/screenshots",
+    ]

@@ -2,8 +2,7 @@ rule evaluate:
     input:
         reference=rules.reference.output.reference,
         truth=rules.reference.output.truth,
-        mesh="results/reconstruct/{row}/{case}/s{seed}/mesh.ply",
-        timing="results/reconstruct/{row}/{case}/s{seed}/timing.json",
+        run="results/reconstruct/{row}/{case}/s{seed}",
     output:
         metrics="results/evaluate/{row}/{case}/s{seed}/metrics.json",
         row="results/evaluate/{row}/{case}/s{seed}/row.json",
@@ -14,20 +13,28 @@ rule evaluate:
             subcategory="{case}",
             labels={"case": "{case}", "row": "{row}", "seed": "{seed}"},
         ),
+        gallery=report(
+            "results/evaluate/{row}/{case}/s{seed}/gallery.png",
+            caption="../report/gallery.rst",
+            category="Gallery",
+            subcategory="{case}",
+            labels={"case": "{case}", "row": "{row}", "seed": "{seed}"},
+        ),
     log:
         "logs/evaluate/{row}/{case}/s{seed}.log",
     benchmark:
         "logs/benchmark/evaluate/{row}/{case}/s{seed}.tsv"
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
     params:
         row=row_info,
         n_views=config["evaluate"]["views"],
         res=config["evaluate"]["res"],
         grid=config["evaluate"]["grid"],
-    threads: 1
-    resources:
-        mem_mb=3000,
-    conda:
-        "../envs/ipm.yaml"
     script:
         "../scripts/evaluate.py"
 
@@ -35,11 +42,11 @@ rule evaluate:
 rule parts_preview:
     input:
         reference=rules.reference.output.reference,
-        transforms=method_transforms,
-        mesh="results/reconstruct/{row}/{case}/s{seed}/mesh.ply",
+        views=method_views_dir,
+        run="results/reconstruct/{row}/{case}/s{seed}",
     output:
         png=report(
-            "results/reconstruct/{row}/{case}/s{seed}/parts.png",
+            "results/evaluate/{row}/{case}/s{seed}/parts.png",
             caption="../report/parts.rst",
             category="Part-labelled meshes",
             subcategory="{case}",
@@ -47,12 +54,15 @@ rule parts_preview:
         ),
     log:
         "logs/parts_preview/{row}/{case}/s{seed}.log",
+    benchmark:
+        "logs/benchmark/parts_preview/{row}/{case}/s{seed}.tsv"
     wildcard_constraints:
         row=METHOD_ROW,
+    conda:
+        "../envs/ipm.yaml"
     threads: 1
     resources:
         mem_mb=2000,
-    conda:
-        "../envs/ipm.yaml"
+        runtime=10,
     script:
         "../scripts/parts_preview.py"

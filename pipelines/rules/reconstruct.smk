@@ -5,13 +5,14 @@ rule prepare:
         "logs/prepare/{method}/{generator}/s{seed}.log",
     benchmark:
         "logs/benchmark/prepare/{method}/{generator}/s{seed}.tsv"
-    params:
-        profile=config["profile"],
+    conda:
+        "../envs/ipm.yaml"
     threads: 1
     resources:
         mem_mb=3000,
-    conda:
-        "../envs/ipm.yaml"
+        runtime=RECONSTRUCT_MINUTES[config["profile"]],
+    params:
+        profile=config["profile"],
     script:
         "../scripts/prepare.py"
 
@@ -20,14 +21,20 @@ rule reconstruct:
     input:
         unpack(method_inputs),
     output:
-        mesh="results/reconstruct/{row}/{case}/s{seed}/mesh.ply",
-        timing="results/reconstruct/{row}/{case}/s{seed}/timing.json",
+        run=directory("results/reconstruct/{row}/{case}/s{seed}"),
     log:
         "logs/reconstruct/{row}/{case}/s{seed}.log",
     benchmark:
         "logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv"
     wildcard_constraints:
         row=METHOD_ROW,
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        **GPU,
+        mem_mb=4000,
+        runtime=RECONSTRUCT_MINUTES[config["profile"]],
     params:
         method=method_name,
         n_input_views=method_views,
@@ -35,12 +42,6 @@ rule reconstruct:
         profile=config["profile"],
         settings=lambda wildcards: method_of(wildcards).get("settings", {}),
         device=config["device"],
-    threads: 1
-    resources:
-        mem_mb=4000,
-        gpu=1 if config["device"] == "cuda" else 0,
-    conda:
-        "../envs/ipm.yaml"
     script:
         "../scripts/reconstruct.py"
 
@@ -50,14 +51,16 @@ rule reference_line:
         reference=rules.reference.output.reference,
         truth=rules.reference.output.truth,
     output:
-        mesh="results/reconstruct/line_{name}/{case}/s{seed}/mesh.ply",
-        timing="results/reconstruct/line_{name}/{case}/s{seed}/timing.json",
+        run=directory("results/reconstruct/line_{name}/{case}/s{seed}"),
     log:
         "logs/reference_line/{name}/{case}/s{seed}.log",
+    benchmark:
+        "logs/benchmark/reference_line/{name}/{case}/s{seed}.tsv"
+    conda:
+        "../envs/ipm.yaml"
     threads: 1
     resources:
         mem_mb=1000,
-    conda:
-        "../envs/ipm.yaml"
+        runtime=10,
     script:
         "../scripts/reference_line.py"

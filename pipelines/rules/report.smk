@@ -1,40 +1,79 @@
 rule table:
     input:
         metrics=all_metrics(),
+        rows=run_files("results/evaluate/{row}/{case}/s{seed}/row.json"),
     output:
-        table=report("results/table.csv", caption="../report/table.rst", category="Table 1"),
+        table=report(
+            "results/table.csv",
+            caption="../report/table.rst",
+            category="Table 1",
+        ),
         wide="results/table_iou.csv",
         summary="results/table_summary.csv",
-        markdown="results/table1.md",
+        markdown=report(
+            "results/table1.md",
+            caption="../report/table1.rst",
+            category="Table 1",
+        ),
     log:
         "logs/table.log",
+    benchmark:
+        "logs/benchmark/table.tsv"
+    conda:
+        "../envs/ipm.yaml"
     threads: 1
     resources:
         mem_mb=500,
-    conda:
-        "../envs/ipm.yaml"
+        runtime=10,
     script:
         "../scripts/table.py"
 
 
 rule report:
     input:
+        **report_inputs(),
         table=rules.table.output.table,
         wide=rules.table.output.wide,
         summary=rules.table.output.summary,
-        metrics=all_metrics(),
-        parts=all_parts_previews(),
     output:
-        html="results/report/index.html",
+        html=report(
+            "results/report/index.html",
+            caption="../report/page.rst",
+            category="Report",
+        ),
     log:
         "logs/report.log",
+    benchmark:
+        "logs/benchmark/report.tsv"
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
     params:
         config=config,
         input_dirs=input_view_dirs(),
-    threads: 1
-    resources:
-        mem_mb=1000,
-    conda:
-        "../envs/ipm.yaml"
     script:
         "../scripts/report.py"
+
+
+rule report_check:
+    input:
+        html=rules.report.output.html,
+    output:
+        screenshots=directory("results/report/screenshots"),
+    log:
+        "logs/report_check.log",
+    benchmark:
+        "logs/benchmark/report_check.tsv"
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=20,
+    params:
+        rows=lambda wildcards: table_labels(),
+    script:
+        "../scripts/report_check.py"

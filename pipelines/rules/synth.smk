@@ -2,35 +2,43 @@ rule reference:
     output:
         reference="results/synth/{case}/reference.ply",
         truth="results/synth/{case}/ground_truth.json",
+        gallery=report(
+            "results/synth/{case}/gallery.png",
+            caption="../report/gallery.rst",
+            category="Gallery",
+            subcategory="{case}",
+            labels={"case": "{case}", "row": "reference", "seed": "-"},
+        ),
     log:
         "logs/reference/{case}.log",
+    benchmark:
+        "logs/benchmark/reference/{case}.tsv"
+    conda:
+        "../envs/ipm.yaml"
     threads: 1
     resources:
         mem_mb=1000,
-    conda:
-        "../envs/ipm.yaml"
+        runtime=10,
     script:
         "../scripts/reference.py"
 
 
 rule synth:
     output:
-        transforms="results/synth/{case}/{layout}{n}/transforms.json",
+        views=directory("results/synth/{case}/{layout}{n}"),
     log:
         "logs/synth/{case}/{layout}{n}.log",
     benchmark:
         "logs/benchmark/synth/{case}/{layout}{n}.tsv"
-    wildcard_constraints:
-        layout="hemi|ring",
-        n="[0-9]+",
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
     params:
         views=lambda wildcards: int(wildcards.n),
         res=synth_res,
         spp=config["synth"]["spp"],
-    threads: 1
-    resources:
-        mem_mb=3000,
-    conda:
-        "../envs/ipm.yaml"
     script:
         "../scripts/synth.py"

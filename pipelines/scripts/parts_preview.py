@@ -1,5 +1,5 @@
 from ipm.workflow import parts_preview_step
 
-parts_preview_step(reference=snakemake.input.reference, transforms=snakemake.input.transforms,
-                   mesh=snakemake.input.mesh, png=snakemake.output.png, threads=snakemake.threads,
+parts_preview_step(reference=snakemake.input.reference, transforms=f"{snakemake.input.views}/transforms.json",
+                   mesh=f"{snakemake.input.run}/mesh.ply", png=snakemake.output.png, threads=snakemake.threads,
                    log=snakemake.log[0])

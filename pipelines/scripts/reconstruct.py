@@ -1,7 +1,7 @@
 from ipm.workflow import reconstruct_step
 
-reconstruct_step(method=snakemake.params.method, transforms=snakemake.input.transforms,
-                 mesh=snakemake.output.mesh, generator=snakemake.params.generator,
+reconstruct_step(method=snakemake.params.method, transforms=f"{snakemake.input.views}/transforms.json",
+                 mesh=f"{snakemake.output.run}/mesh.ply", generator=snakemake.params.generator,
                  profile=snakemake.params.profile, seed=int(snakemake.wildcards.seed),
                  n_input_views=snakemake.params.n_input_views,
                  prepared=snakemake.input.get("prepared"), settings=snakemake.params.settings,

@@ -1,3 +1,4 @@
 from ipm.workflow import reference_step
 
-reference_step(case=snakemake.wildcards.case, reference=snakemake.output.reference, log=snakemake.log[0])
+reference_step(case=snakemake.wildcards.case, reference=snakemake.output.reference,
+               gallery=snakemake.output.gallery, log=snakemake.log[0])

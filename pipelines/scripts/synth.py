@@ -1,5 +1,5 @@
 from ipm.workflow import synth_step
 
-synth_step(case=snakemake.wildcards.case, transforms=snakemake.output.transforms, views=snakemake.params.views,
-           res=snakemake.params.res, spp=snakemake.params.spp, layout=snakemake.wildcards.layout,
-           threads=snakemake.threads, log=snakemake.log[0])
+synth_step(case=snakemake.wildcards.case, transforms=f"{snakemake.output.views}/transforms.json",
+           views=snakemake.params.views, res=snakemake.params.res, spp=snakemake.params.spp,
+           layout=snakemake.wildcards.layout, threads=snakemake.threads, log=snakemake.log[0])

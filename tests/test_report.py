@@ -1,0 +1,198 @@
+"""The HTML report on a tiny results tree: Table 1 laid out as the paper's, best marks, failures
+with their reasons, provenance, 3D views; and the same page opened in headless Chromium."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+from PIL import Image
+
+from ipm.io import save_glb, save_ply
+from ipm.table import build_table
+from reports import build
+from reports.browser import check_report
+
+SPLIT = {"cup_1": "dev", "cup_t1": "test", "cup_goblet": "test"}
+OURS, HULL, LINE = "ours (diff, 1 view)", "visual hull (6 views)", "convex hull (reference)"
+RUNS = [  # row, label, kind, case, seed, IoU (None: failed)
+    ("diff_1v", OURS, "method", "cup_t1", 0, 0.95), ("diff_1v", OURS, "method", "cup_t1", 1, 0.90),
+    ("diff_1v", OURS, "method", "cup_goblet", 0, 0.95), ("diff_1v", OURS, "method", "cup_1", 0, 0.97),
+    ("visual_hull_6v", HULL, "baseline", "cup_t1", 0, 0.88), ("visual_hull_6v", HULL, "baseline", "cup_1", 0, 0.93),
+    ("visual_hull_6v", HULL, "baseline", "cup_goblet", 0, None),
+    ("line_convex_hull", LINE, "reference", "cup_t1", 0, 0.99),
+    ("line_convex_hull", LINE, "reference", "cup_1", 0, 0.99),
+    ("line_convex_hull", LINE, "reference", "cup_goblet", 0, 0.98),
+]
+FAILURE = "no points survived carving"
+
+
+def _png(path: Path, colour, size=(24, 16)) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.new("RGB", size, colour).save(path)
+
+
+def _run(root: Path, row, label, kind, case, seed, iou) -> str:
+    """metrics.json, row.json and the pictures of one run; its mesh (GLB for ours, PLY otherwise),
+    trace and benchmark file."""
+    folder = root / "results/evaluate" / row / case / f"s{seed}"
+    recon = root / "results/reconstruct" / row / case / f"s{seed}"
+    recon.mkdir(parents=True)
+    metrics = {"failed": FAILURE} if iou is None else {
+        "iou_mean": iou, "shape_iou": iou, "viou": iou - 0.2, "chamfer_l1": 0.05 / iou, "chamfer_l2": 0.004 / iou,
+        "n_triangles": 320, "malformed_share": 0.01, "recon_watertight": kind != "baseline"}
+    _png(folder / "gallery.png", (90, 120, 200), (72, 48))
+    _png(folder / "preview.png", (200, 200, 200))
+    (folder / "metrics.json").write_text(json.dumps(metrics))
+    (folder / "row.json").write_text(json.dumps({
+        "label": label, "kind": kind, "split": SPLIT[case], "generator": "dishes", "seed": seed, "seconds": 2.0 + seed,
+        "machine": "host-1 · Test CPU · 2 CPUs · Linux" if kind != "reference" else "not recorded",
+        "note": f"failed: {FAILURE}" if iou is None else ""}))
+    if iou is not None:
+        sphere = trimesh.creation.icosphere(subdivisions=2)
+        save_ply(recon / "mesh.ply", sphere.vertices, sphere.faces)
+        if kind == "method":
+            save_glb(recon / "mesh.glb", sphere.vertices, sphere.faces, np.zeros(len(sphere.faces), int), ("body",))
+            pd.DataFrame({"stage": "memetic", "res": 64, "eval": range(6), "origin": "mug",
+                          "loss": [0.3, 0.2, 0.25, 0.1, 0.12, 0.05], "best": [0.3, 0.2, 0.2, 0.1, 0.1, 0.05],
+                          "seconds": np.linspace(0.5, 3.0, 6)}).to_csv(recon / "trace.csv", index=False)
+    if kind != "reference":
+        bench = root / "logs/benchmark/reconstruct" / row / case / f"s{seed}.tsv"
+        bench.parent.mkdir(parents=True, exist_ok=True)
+        bench.write_text("s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+                         f"{3.5 + seed}\t0:00:03\t{500 + 10 * seed}\t900\t400\t450\t0.1\t0.2\t80\t3.1\n")
+    return str(folder / "metrics.json")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """A results tree (three rows, three cases, one failed run) and its report."""
+    root = tmp_path_factory.mktemp("report")
+    files = [_run(root, *r) for r in RUNS]
+    res = root / "results"
+    out = {k: str(res / f"{k}.csv") for k in ("table", "table_iou", "table_summary")}
+    build_table(files, out["table"], out["table_iou"], out["table_summary"])
+    for case in SPLIT:
+        _png(res / "synth" / case / "hemi1" / "rgb" / "000.png", (30, 140, 60))
+        _png(res / "synth" / case / "hemi1" / "masks" / "000.png", (255, 255, 255))
+        _png(res / "synth" / case / "gallery.png", (150, 150, 150), (72, 48))
+    config = {"profile": "tiny", "seeds": [0, 1], "cases": list(SPLIT), "evaluate": {"views": 64}}
+    html = res / "report" / "index.html"
+    build.build_report(table_csv=out["table"], wide_csv=out["table_iou"], summary_csv=out["table_summary"],
+                       metrics=files, out_html=str(html), config=config,
+                       input_dirs={c: str(res / "synth" / c / "hemi1") for c in SPLIT},
+                       benchmarks=sorted(map(str, (root / "logs").rglob("*.tsv"))))
+    summary = pd.read_csv(out["table_summary"])
+    return {"root": root, "html": html, "text": html.read_text(), "table": pd.read_csv(out["table"]),
+            "summary": summary}
+
+
+def _cells(blocks: list[dict]) -> dict:
+    """(label, column) -> cell of every block."""
+    return {(r["label"], c["name"]): cell
+            for b in blocks for r in b["rows"] for c, cell in zip(b["columns"], r["cells"])}
+
+
+def test_table1_rows_are_methods_columns_cases_then_aggregates_test_split_first(report):
+    text = report["text"]
+    assert text.index("Table 1: 64-view silhouette IoU, test split") < text.index("Dev split")
+    [test] = build.metric_blocks(report["summary"], report["table"], build.TABLE1, "test")
+    assert [c["name"] for c in test["columns"]] == ["cup_t1", "cup_goblet", "cups/test/in", "cups/test/out",
+                                                     "cups/test/all"]
+    assert [r["label"] for r in test["rows"]] == [HULL, OURS, LINE]  # baselines, ours, reference lines
+    cell = _cells([test])[(OURS, "cup_t1")]
+    assert cell["main"] == "0.925" and cell["rest"] == "± 0.035 (worst 0.900)"
+
+
+def test_best_is_marked_per_column_and_reference_lines_never_win(report):
+    cells = _cells(build.metric_blocks(report["summary"], report["table"], build.TABLE1, "test"))
+    assert "best" in cells[(OURS, "cup_t1")]["cls"] and "best" not in cells[(HULL, "cup_t1")]["cls"]
+    assert not any("best" in cells[(LINE, c)]["cls"] for c in ("cup_t1", "cup_goblet"))  # 0.99 > 0.85: context
+    chamfer = _cells(build.metric_blocks(report["summary"], report["table"], build.SIBLINGS[2], "test"))
+    assert build.SIBLINGS[2].metric == "chamfer_l1"  # smaller is better: ours has the smaller one here
+    assert "best" in chamfer[(OURS, "cup_t1")]["cls"] and "best" not in chamfer[(HULL, "cup_t1")]["cls"]
+
+
+def test_failures_show_a_dash_with_the_reason_on_hover(report):
+    cells = _cells(build.metric_blocks(report["summary"], report["table"], build.TABLE1, "test"))
+    failed = cells[(HULL, "cup_goblet")]
+    assert failed["main"] == "-" and "failed" in failed["cls"] and FAILURE in failed["title"]
+    assert FAILURE in cells[(HULL, "cups/test/all")]["title"]  # the aggregate over it says why too
+    title = f"cup_goblet seed 0: failed: {FAILURE}"
+    assert re.search(f'<td data-v="" class="failed[^"]*" title="{title}">-', report["text"])  # what the reader hovers
+
+
+def test_volumetric_iou_of_a_mesh_that_is_not_watertight_is_marked_unreliable(report):
+    viou = build.SIBLINGS[1]
+    assert viou.metric == "viou"
+    cells = _cells(build.metric_blocks(report["summary"], report["table"], viou, "test"))
+    assert "caveat" in cells[(HULL, "cup_t1")]["cls"] and "not watertight" in cells[(HULL, "cup_t1")]["title"]
+    assert "caveat" not in cells[(OURS, "cup_t1")]["cls"]
+
+
+def test_page_is_self_contained_with_everything_a_reader_needs(report):
+    text = report["text"]
+    for needle in ("Table 1", OURS, "data:image/png;base64", "test split", "Parameter recovery", "The paper's Table 1",
+                   "0.967", "Volumetric IoU", "Chamfer-L1", "Chamfer-L2", "Parameter error", "Time and peak memory",
+                   "host-1 · Test CPU · 2 CPUs · Linux", "not recorded", "numpy", "profile: tiny", "<model-viewer",
+                   'data-glb-gz="', "convergence of seed 0", "Dev split", 'table class="metric sortable table1"'):
+        assert needle in text, needle
+    assert text.count('<script type="module">') == 1  # model-viewer inlined once
+    assert not re.search(r'(src|href)="(https?:)?//', text)  # nothing fetched from the network
+    timing = text[text.index('id="timing"'):text.index('id="cases"')]
+    ours = timing[timing.index(f"<td>{OURS}</td>"):]
+    assert ours[:ours.index("</tr>")].endswith("<td>510</td>")  # peak RSS of ours' two jobs (500 and 510 MB)
+
+
+def test_pictures_missing_on_disk_say_so(report, tmp_path):
+    res = tmp_path / "results"
+    shutil.copytree(report["root"] / "results", res)
+    (res / "evaluate/diff_1v/cup_t1/s0/gallery.png").unlink()
+    build.build_report(table_csv=str(res / "table.csv"), wide_csv=str(res / "table_iou.csv"), metrics=[],
+                       out_html=str(res / "index.html"), config={"cases": ["cup_t1"]})
+    assert "(missing)" in (res / "index.html").read_text()
+
+
+def test_large_models_are_left_out_with_a_note(report, monkeypatch):
+    monkeypatch.setattr(build, "MAX_MODEL_BYTES", 1000)
+    model = build._model(report["root"] / "results/reconstruct/diff_1v/cup_t1/s0", "x")
+    assert model["gz"] is None and "the page embeds models up to" in model["note"]
+
+
+def test_trace_plots_show_loss_against_evaluations_and_wall_time():
+    diff = pd.DataFrame({"stage": ["memetic"] * 3 + ["refine"] * 2, "res": [64] * 3 + [128] * 2, "eval": range(5),
+                         "loss": [0.3, 0.2, 0.1, 0.08, 0.05], "best": [0.3, 0.2, 0.1, 0.08, 0.05],
+                         "seconds": [0.1, 0.2, 0.3, 0.5, 0.7]})
+    ga = pd.DataFrame({"eval": range(4), "node": 0, "level": [0, 0, 1, 1], "generation": 0,
+                       "loss": [0.9, 0.8, 0.85, 0.7], "best": [0.9, 0.8, 0.8, 0.7]})
+    assert len(build._trace_plot(diff).axes) == 2 and len(build._trace_plot(ga).axes) == 1
+
+
+def test_check_report_in_chromium_passes_and_saves_screenshots(report, tmp_path):
+    result = check_report(str(report["html"]), str(tmp_path / "shots"), [OURS, HULL, LINE])
+    assert result["rows_missing"] == [] and result["errors"] == [] and result["images_broken"] == []
+    assert result["models_loaded"] == 8 and result["models_failed"] == []  # every run shown that has a mesh
+    assert result["images_ok"] > 10
+    for name in ("page.png", "table1.png", "model.png"):
+        assert Image.open(tmp_path / "shots" / name).size[0] > 100
+    assert json.loads((tmp_path / "shots" / "check.json").read_text())["screenshots"] == result["screenshots"]
+
+
+def test_check_report_fails_with_one_clear_line_on_a_broken_page(report, tmp_path):
+    text = report["text"]
+    text = re.sub(r'src="data:image/png;base64,[^"]+"', 'src="data:image/png;base64,AAAA"', text, count=1)
+    text = re.sub(r'data-glb-gz="[^"]+"', 'data-glb-gz="bm90IGEgZ2xi"', text, count=1)
+    broken = tmp_path / "broken.html"
+    broken.write_text(text)
+    with pytest.raises(RuntimeError) as err:
+        check_report(str(broken), str(tmp_path / "shots"), [OURS, "no such row"])
+    message = str(err.value)
+    assert "\n" not in message
+    for part in ("Table 1 lacks row(s) no such row", "1 image(s) did not load", "1 3D view(s) did not load"):
+        assert part in message, message
+    assert json.loads((tmp_path / "shots" / "check.json").read_text())["rows_missing"] == ["no such row"]
