@@ -172,12 +172,12 @@ def build_table(metrics: list[str], table_csv: str, wide_csv: str, summary_csv: 
     aggs = [c for c in summary["case"].drop_duplicates() if c not in cases]
     wide = wide.reindex(index=list(df["label"].drop_duplicates()), columns=cases + aggs)  # failed runs: NaN ("-")
     with atomic_path(table_csv) as tmp:
-        df.to_csv(tmp, index=False, float_format="%.4f")
+        df.to_csv(tmp, index=False, float_format="%.6g")
     with atomic_path(wide_csv) as tmp:
         wide.to_csv(tmp, float_format="%.3f")
     if summary_csv:
         with atomic_path(summary_csv) as tmp:
-            summary.to_csv(tmp, index=False, float_format="%.4f")
+            summary.to_csv(tmp, index=False, float_format="%.6g")
     if markdown_path:
         with atomic_path(markdown_path) as tmp:
             tmp.write_text(markdown(summary) + "\n" + markdown(summary, "shape_iou") + "\n")

@@ -106,9 +106,19 @@ def _fig(fig) -> str:
 def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
     """Loss against evaluations and, where the trace has ``seconds``, against wall time: the diff
     path's stages and resolutions, or the GA's tree levels (leaves 0, root highest); the black line
-    is the best so far."""
+    is the best so far. Where the trace has ``iou`` (the diff path: the input-view IoU of each
+    stage's best, at the stage's end), a second row plots it against the same axes."""
     xs = [("eval", "evaluation")] + ([("seconds", "wall time (s)")] if "seconds" in trace else [])
-    fig, axes = plt.subplots(1, len(xs), figsize=(4.6 * len(xs), 2.6), squeeze=False)
+    iou = trace[trace["iou"].notna()] if "iou" in trace else trace.iloc[:0]
+    fig, axes = plt.subplots(1 + (not iou.empty), len(xs), figsize=(4.6 * len(xs), 2.6 * (1 + (not iou.empty))),
+                             squeeze=False)
+    for ax, (x, name) in zip(axes[-1] if not iou.empty else [], xs):
+        ax.plot(iou[x], iou["iou"], "o-", ms=4, color="tab:green")
+        for _, r in iou.iterrows():
+            ax.annotate(r["stage"], (r[x], r["iou"]), fontsize=6, xytext=(2, -8), textcoords="offset points")
+        ax.set_xlabel(name)
+        ax.set_ylabel("input-view IoU")
+        ax.grid(alpha=0.3)
     groups = trace.groupby(["stage", "res"], sort=False) if "stage" in trace else trace.groupby("level")
     for ax, (x, name) in zip(axes[0], xs):
         for key, part in groups:

@@ -46,6 +46,10 @@ def test_diff_reconstruction_writes_everything(tmp_path, tiny_case, renderer):
     trace = pd.read_csv(out / "trace.csv")
     assert len(trace) == params["evaluations"] and {"memetic", "refine"} <= set(trace["stage"])
     assert trace["best"].iloc[-1] <= trace["loss"].iloc[0]  # the search improved on its start
+    # the input-view IoU at the end of each stage: memetic, polish, refine (one 64 px stage), simplify
+    ious = trace[trace["iou"].notna()]
+    assert len(ious) == 4 and ious["iou"].between(0, 1).all() and ious["eval"].is_monotonic_increasing
+    assert ious["iou"].iloc[-1] > 0.8
     mesh = load_mesh(out / "mesh.ply")
     assert mesh.is_watertight
     scene = trimesh.load(out / "mesh.glb")

@@ -171,6 +171,10 @@ def test_trace_plots_show_loss_against_evaluations_and_wall_time():
     ga = pd.DataFrame({"eval": range(4), "node": 0, "level": [0, 0, 1, 1], "generation": 0,
                        "loss": [0.9, 0.8, 0.85, 0.7], "best": [0.9, 0.8, 0.8, 0.7]})
     assert len(build._trace_plot(diff).axes) == 2 and len(build._trace_plot(ga).axes) == 1
+    # with the input-view IoU at the stages' ends, a second row plots it against the same axes
+    diff["iou"] = [np.nan, np.nan, 0.7, np.nan, 0.9]
+    axes = build._trace_plot(diff).axes
+    assert len(axes) == 4 and list(axes[2].lines[0].get_ydata()) == [0.7, 0.9]
 
 
 def test_check_report_in_chromium_passes_and_saves_screenshots(report, tmp_path):

@@ -361,9 +361,26 @@ def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.
     return problem.clip(z), changes
 
 
+def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
+    """Mean IoU of the input masks and the silhouettes of ``z``'s mesh from the input cameras (open3d
+    ray casting at ``res`` px): the trace's progress in the metric's own terms. NaN where the
+    cameras are not known (a photo) or the images are not square."""
+    import trimesh
+
+    from ipm.metrics.silhouette import raycast_masks, view_ious
+
+    if views.camera is not None or views.width != views.height or views.masks is None:
+        return float("nan")
+    mesh, res = problem.world_mesh(z, lod), min(res, views.width)
+    rec = raycast_masks(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), list(views.c2w), res,
+                        float(np.degrees(views.fov_x)))
+    return float(view_ious(resize_masks(views.masks, res) > 0.5, rec).mean())
+
+
 def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int = 0,
                 progress: bool = True) -> tuple[np.ndarray, pd.DataFrame]:
-    """Best ``z`` for ``views`` and the trace (one row per evaluation)."""
+    """Best ``z`` for ``views`` and the trace (one row per evaluation; at the end of each stage its
+    ``iou`` column holds the input-view IoU of the stage's best, :func:`input_iou`)."""
     rng = np.random.default_rng(seed)
     total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
              * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
@@ -387,13 +404,21 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
                                                time.perf_counter() - t0))
 
     levels, least = problem.spec.levels, problem.generator.min_fit_lod
+    ious = {}
+
+    def checkpoint(z: np.ndarray) -> None:
+        """The input-view IoU of the current stage's best, on the stage's last trace row."""
+        ious[len(rows) - 1] = input_iou(problem, views, z, max(profile.refine_lod, least))
+
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     final = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
                     prepare=objective.match_area, yaw_free=problem.yaw_free)
+    checkpoint(final[0].best_z)
     state["stage"] = "polish"
     zs = [polish(problem, objective, ind.best_z, profile, on_eval, recorder("polish", state["res"]))
           for ind in finalists(problem, final, profile.refine_candidates)]
+    checkpoint(zs[0])
     for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
@@ -413,11 +438,14 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
             refined.append(ind.best_z)
         zs = [_choose(refined, objective, recorder("choose", res))] if len(refined) > 1 else refined
+        checkpoint(zs[0])
     z = zs[0]
     state["stage"] = "simplify"
     z = simplify(problem, objective, z, profile.occam_tolerance, recorder("simplify", state["res"]))
+    checkpoint(z)
     bar.close()
     trace = pd.DataFrame(rows, columns=["stage", "res", "eval", "origin", "loss", "best", "seconds"])
+    trace["iou"] = pd.Series(ious, dtype=float)
     return z, trace
 
 
