@@ -102,8 +102,8 @@ def test_failure_record_flows_into_the_table(tmp_path):
     assert len(load_mesh(tmp_path / "rec" / "mesh.ply", allow_empty=True).faces) == 0
     out = tmp_path / "results" / "evaluate" / "colmap_sfm_16v" / "cup_1" / "s0"
     out.mkdir(parents=True)
-    evaluate_step(str(ref_dir / "reference.ply"), str(ref_dir / "ground_truth.json"), str(tmp_path / "rec" / "mesh.ply"),
-                  str(tmp_path / "rec" / "timing.json"), str(out / "metrics.json"), str(out / "preview.png"),
+    evaluate_step(str(ref_dir / "reference.ply"), str(ref_dir / "ground_truth.json"), str(tmp_path / "rec"),
+                  str(out / "metrics.json"), str(out / "preview.png"),
                   {"label": "COLMAP SfM (16 views)", "kind": "baseline"}, seed=0, n_views=8, res=32, grid=16)
     assert json.loads((out / "metrics.json").read_text()) == {"failed": "registered 1 of 16 images"}
     assert (out / "preview.png").is_file()

@@ -166,6 +166,7 @@ def test_same_seed_same_trace():
     runs = [TreeGA(SPEC, SMALL, None, seed).minimize(mixed_loss, progress=False) for seed in (7, 7, 8)]
     (u1, l1, t1), (u2, l2, t2), (_, _, t3) = runs
     np.testing.assert_array_equal(u1, u2)
+    t1, t2, t3 = (t.drop(columns="seconds") for t in (t1, t2, t3))  # wall time is the one thing that differs
     assert l1 == l2 and t1.equals(t2) and not t1.equals(t3)
     assert len(t1) == SMALL.budget and t1["eval"].tolist() == list(range(SMALL.budget))
     assert np.all(np.diff(t1["best"]) <= 0) and t1["best"].iloc[-1] == l1 == t1["loss"].min()
@@ -190,6 +191,8 @@ def test_tree_seeds_higher_nodes_with_the_childrens_best():
     tree.minimize(mixed_loss, progress=False)
     assert [n.level for n in tree.nodes] == [0, 0, 1, 0, 0, 1, 2]
     assert sum(n.ga.evaluations for n in tree.nodes) == 150 == len(tree.trace)
+    seconds = tree.trace["seconds"]  # wall time since the plan, for the report's convergence plots
+    assert (seconds >= 0).all() and seconds.is_monotonic_increasing
     for node in tree.nodes:
         if not node.children:
             assert len(node.ga.initial) == 12

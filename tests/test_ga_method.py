@@ -189,7 +189,8 @@ def test_ga_is_deterministic(tmp_path, tree_case, tree_stats):
     b = run_ga(tree_case / "transforms.json", tmp_path / "b", **kw)
     assert a == b and a["evaluations"] == 40 and a["statistics"] == str(tree_stats)
     assert (tmp_path / "a" / "params.json").read_text() == (tmp_path / "b" / "params.json").read_text()
-    assert (tmp_path / "a" / "trace.csv").read_text() == (tmp_path / "b" / "trace.csv").read_text()
+    traces = [pd.read_csv(tmp_path / r / "trace.csv").drop(columns="seconds") for r in "ab"]  # wall time differs
+    assert traces[0].equals(traces[1])
     c = run_ga(tree_case / "transforms.json", tmp_path / "c", **{**kw, "seed": 5})
     assert c["genes"] != a["genes"]
     # without a statistics file the run collects its own first (2 * 24 more evaluations)

@@ -155,7 +155,7 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     work, store = tmp_path / "work", tmp_path / "store"
     args = ("--configfile", str(ROOT / "pipelines/config/smoke.yaml"), "--directory", str(work), *STORAGE,
             "--default-storage-prefix", str(store))
-    res = snakemake("--cores", "2", *args)
+    res = snakemake("--cores", "2", *args, timeout=1800)  # 7.5 minutes on this project's slower machine
     assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
     assert undeclared(work) == []
     res = snakemake("--report", str(tmp_path / "report.zip"), *args)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -130,6 +131,9 @@ class GASettings:
     def n_nodes(self) -> int:
         return 2 ** (self.depth + 1) - 1
 
+
+TRACE_COLUMNS = ("eval", "node", "level", "generation", "loss", "best", "seconds")
+"""Columns of :attr:`TreeGA.trace`, one row per evaluation."""
 
 GA_PROFILES = {
     "paper": GASettings(),
@@ -653,6 +657,7 @@ class TreeGA:
         self._current = 0
         self._pending: np.ndarray | None = None
         self._rows: list[tuple] = []
+        self._t0 = time.perf_counter()
         self.evaluations = 0
         self.best_u: np.ndarray | None = None
         self.best_loss = math.inf
@@ -700,20 +705,22 @@ class TreeGA:
         losses = _clean_losses(losses, len(self._pending))
         node = self.nodes[self._current]
         node.ga.tell(losses)
+        now = time.perf_counter() - self._t0
         for u, loss in zip(self._pending, losses):
             if loss < self.best_loss or self.best_u is None:
                 self.best_loss, self.best_u = float(loss), u.copy()
             self._rows.append((self.evaluations, node.index, node.level, node.ga.generation, float(loss),
-                               self.best_loss))
+                               self.best_loss, now))
             self.evaluations += 1
         self._pending = None
 
     @property
     def trace(self) -> pd.DataFrame:
-        """One row per evaluation: eval, node, level, generation, loss, best (so far)."""
+        """One row per evaluation: eval, node, level, generation, loss, best (so far), seconds (since
+        the plan, when its batch was told)."""
         import pandas as pd
 
-        return pd.DataFrame(self._rows, columns=["eval", "node", "level", "generation", "loss", "best"])
+        return pd.DataFrame(self._rows, columns=TRACE_COLUMNS)
 
     def minimize(self, loss_fn: Callable[[np.ndarray], float], budget: int | None = None, progress: bool = True,
                  on_eval: Callable[[dict, np.ndarray], None] | None = None) -> tuple[np.ndarray, float, pd.DataFrame]:
@@ -731,7 +738,6 @@ class TreeGA:
                 raise RuntimeError("the budget can only change before the first ask()")
             self._plan(budget)
         bar = tqdm(total=self.budget, desc="GA", unit="eval", disable=not progress, leave=False)
-        cols = ["eval", "node", "level", "generation", "loss", "best"]
         try:
             while not self.done:
                 batch = self.ask()
@@ -743,7 +749,7 @@ class TreeGA:
                 self.tell(losses)
                 if on_eval is not None:
                     for row, u in zip(self._rows[n0:], batch):
-                        on_eval(dict(zip(cols, row)), u.copy())
+                        on_eval(dict(zip(TRACE_COLUMNS, row)), u.copy())
                 bar.set_postfix(node=self._current, best=f"{self.best_loss:.5f}")
         finally:
             bar.close()

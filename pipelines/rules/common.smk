@@ -222,8 +222,9 @@ def report_inputs():
         "runs": run_files("results/reconstruct/{row}/{case}/s{seed}"),
         "benchmarks": run_files("logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv", methods_only=True),
         "views": sorted(set(input_view_dirs().values())),
-        "references": [f"results/synth/{case}/{name}" for case in config["cases"]
-                       for name in ("gallery.png", "reference.ply")],
+        "references": [
+            f"results/synth/{case}/{name}" for case in config["cases"] for name in ("gallery.png", "reference.ply")
+        ],
     }
 
 
