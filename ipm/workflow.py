@@ -66,16 +66,14 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
     ``prepared`` only to methods with a preparation stage; ``settings`` override the profile's), with
     JAX and Mitsuba on ``device`` (the config's: cpu or cuda)."""
     with _logged(log, threads, mitsuba=True, device=device):
-        from ipm.methods import METHODS
-
         from ipm.io import write_json
+        from ipm.methods import METHODS
         from ipm.runtime import machine_info
 
         fn = METHODS[method]
         extra = {"generator": generator} if fn.uses_generator else {}
         if prepared:
             extra["prepared"] = prepared
-        Path(mesh).parent.mkdir(parents=True, exist_ok=True)
         fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra,
            **dict(settings or {}))
         write_json(Path(mesh).parent / "machine.json", machine_info(threads, device))
@@ -87,7 +85,6 @@ def reference_line_step(name: str, reference: str, truth: str, mesh: str, thread
         from ipm.reference_lines import write_reference_line
         from ipm.runtime import machine_info
 
-        Path(mesh).parent.mkdir(parents=True, exist_ok=True)
         write_reference_line(name, reference, Path(mesh).parent, truth=truth)
         write_json(Path(mesh).parent / "machine.json", machine_info(threads))
 
@@ -156,17 +153,8 @@ def report_check_step(html: str, out_dir: str, rows: list[str], log=None):
     """Open the report in headless Chromium: console errors, every row, images and 3D views;
     screenshots and ``check.json`` into ``out_dir`` (written whole, or not at all)."""
     with _logged(log, 1):
-        import shutil
-        import tempfile
-
+        from ipm.io import atomic_dir
         from reports.browser import check_report
 
-        out = Path(out_dir)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-        try:
+        with atomic_dir(out_dir) as tmp:
             check_report(html, str(tmp), rows)
-            shutil.rmtree(out, ignore_errors=True)
-            tmp.rename(out)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)

@@ -76,19 +76,13 @@ def _splat(xy: np.ndarray, weight: np.ndarray, res: int) -> np.ndarray:
 
 def wireframe(mesh: trimesh.Trimesh, cameras: np.ndarray, res: int) -> np.ndarray:
     """Linear grey images (n, res, res) of the visible edges of ``mesh`` over its silhouette."""
-    from ipm.metrics.silhouette import raycasting_scene
+    from ipm.metrics.silhouette import camera_rays, raycasting_scene
 
     scene = raycasting_scene(mesh)
     vertices = np.asarray(mesh.vertices, np.float64)
     eps = 1e-3 * float(np.linalg.norm(np.ptp(vertices, axis=0)))
-    fov = np.radians(FOV_DEG)
-    f = 0.5 * res / np.tan(0.5 * fov)
-    ys, xs = np.mgrid[0:res, 0:res] + 0.5
-    d_cam = np.stack([(xs - res / 2) / f, -(ys - res / 2) / f, -np.ones_like(xs)], -1).reshape(-1, 3)
     out = []
-    for c2w in cameras:
-        eye = c2w[:3, 3]
-        d = d_cam @ c2w[:3, :3].T
+    for c2w, eye, d in zip(cameras, *camera_rays(cameras, res, FOV_DEG)):
         rays = np.concatenate([np.broadcast_to(eye, d.shape), d], 1).astype(np.float32)
         hit = np.isfinite(scene.cast_rays(rays)["t_hit"].numpy()).reshape(res, res)
         points, xy, weight = _edge_samples(vertices, mesh.edges_unique, c2w, res)
