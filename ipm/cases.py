@@ -51,6 +51,10 @@ SAMPLED = (
     ("building_d2", "buildings", 5002, {}, "dev"),
     ("building_d3", "buildings", 5003, {}, "dev"),
     ("building_d4", "buildings", 5005, {}, "dev"),
+    ("building_d5", "buildings", 5006, {}, "dev"),
+    ("building_d6", "buildings", 5007, {}, "dev"),
+    ("building_d7", "buildings", 5008, {}, "dev"),
+    ("building_d8", "buildings", 5009, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )

@@ -58,7 +58,8 @@ class DiffProfile:
     within 0.005."""
     polish_sweeps: int = 2
     """Sweeps of the discrete hill climbing after the memetic stage (``ipm.methods.diff.polish``:
-    each many-valued discrete parameter one value up and down, and the half turn); 0: none."""
+    each many-valued discrete parameter one value up and down, a categorical one to every other
+    value, and the half turn); 0: none."""
     polish_steps: int = 6
     """Adam steps given to each neighbour before it is compared."""
     decide_steps: int = 0

@@ -224,15 +224,19 @@ def test_dice_scores_a_missed_window_like_none_and_overlap_better(mitsuba_cpu):
 
 def test_polish_steps_window_counts_and_turns(variant):
     """The discrete hill climb moves a many-valued gene one value at a time towards a lower loss,
-    leaves inert genes alone, and tries the half turn."""
+    tries every other value of a categorical gene (a hip roof's flat neighbour too), leaves inert
+    genes alone, and tries the half turn."""
     gen = get_generator("buildings")
     problem = Problem(gen, np.zeros(3), 1.0)
     x = gen.presets["house"].copy()
     x[gen.spec.index["windows_front"]] = 6
     x[gen.spec.index["balconies"]] = 0  # balcony_start is inert
+    x[gen.spec.index["roof_type"]] = 2  # hip
     z = problem.initial_z(gen.spec.to_unit(x), 0.3)
     names = [name for moves in neighbours(problem, z).values() for name, _ in moves]
-    assert {"windows_front=5", "windows_front=7", "floors=1", "floors=3", "yaw+180"} <= set(names)
+    assert {"windows_front=5", "windows_front=7", "floors=1", "floors=3", "roof_type=0", "roof_type=1",
+            "yaw+180"} <= set(names)
+    assert "balconies=1" in names and "balconies=2" not in names  # ordered: one value at a time
     assert not any(name.startswith("balcony_start") for name in names)
     i = gen.spec.index["windows_front"]
     target_yaw = np.mod(z[problem.n_shape] + np.pi, 2 * np.pi)

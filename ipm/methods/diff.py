@@ -176,19 +176,22 @@ def simplify(problem: Problem, objective: Objective, z: np.ndarray, tolerance: f
 def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.ndarray]]]:
     """Discrete neighbours of ``z`` for :func:`polish`, by the parameter they change: each
     many-valued discrete parameter that shapes the object one value down and up (a floor more or
-    less, a window more or less on a facade), and ``yaw``: the half turn (a house's two long
-    sides have near-identical silhouettes; its windows and door tell them apart)."""
+    less, a window more or less on a facade), or, for a categorical one (``Generator.categorical``:
+    a roof's type), every other value, since its values have no order (a low hip roof's nearest
+    shape is a flat roof, two steps away); and ``yaw``: the half turn (a house's two long sides
+    have near-identical silhouettes; its windows and door tell them apart)."""
     spec, n = problem.spec, problem.n_shape
     levels = spec.levels
     active = problem.generator.active(spec.from_unit(z[:n]))
+    categorical = {spec.index[name] for name in problem.generator.categorical}
     out = {}
     for i in np.nonzero(spec.discrete & (levels > 2) & active)[0]:
         k = int(round(z[i] * (levels[i] - 1)))
-        for step in (-1, 1):
-            if 0 <= k + step < levels[i]:
-                alt = z.copy()
-                alt[i] = (k + step) / (levels[i] - 1)
-                out.setdefault(spec.names[i], []).append((f"{spec.names[i]}={spec.lower[i] + k + step:g}", alt))
+        values = [v for v in range(int(levels[i])) if v != k] if i in categorical else [k - 1, k + 1]
+        for v in (v for v in values if 0 <= v < levels[i]):
+            alt = z.copy()
+            alt[i] = v / (levels[i] - 1)
+            out.setdefault(spec.names[i], []).append((f"{spec.names[i]}={spec.lower[i] + v:g}", alt))
     alt = z.copy()
     alt[n] += np.pi
     out["yaw"] = [("yaw+180", problem.clip(alt))]
