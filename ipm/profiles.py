@@ -68,7 +68,11 @@ class DiffProfile:
     values are compared at that stage's resolution (``ipm.methods.diff.decide``); 0: none. Off by
     default: with 30 steps the dev buildings' mean IoU moved by +0.002 (one view, seeds 0 and 1;
     building_d3 seed 1 0.907 -> 0.979, building_d2 0.951 -> 0.921 twice: from one view a low
-    gable and a hip roof are a few per cent apart in the loss either way)."""
+    gable and a hip roof are a few per cent apart in the loss either way). Session 11, with
+    refine_candidates 3 and polish's categorical moves, 30 steps on 7 of 18 dev runs: building_d5
+    seed 0 0.940 -> 0.991, building_d6 seed 1 0.884 -> 0.974, building_d2 seed 1 0.917 -> 0.951 (as
+    with polish's moves alone), building_d2 seed 0 0.940 -> 0.910, the other three within 0.004;
+    not yet on the other 11 runs, so still off."""
     focal_sweep: int = 0
     """For a camera whose field of view is unknown (``ipm.photo``): before the last refinement
     stage, the focal gene is held at the estimate's and at this many points on either side,
