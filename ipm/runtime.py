@@ -53,8 +53,9 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
     _THREADS = threads
     if "jax" in sys.modules:
         _start_xla_cpu(threads)
-    elif not any(isinstance(f, _AfterImport) for f in sys.meta_path):
+    elif not any(isinstance(f, _AfterImport) and f.name == "jax" for f in sys.meta_path):
         sys.meta_path.insert(0, _AfterImport("jax", lambda module: _start_xla_cpu(_THREADS)))
+    _keep_fault_handlers("pycolmap")
 
 
 _THREADS: int | None = None
@@ -117,15 +118,18 @@ def _start_xla_cpu(threads: int) -> None:
 
 
 class _AfterImport(importlib.abc.MetaPathFinder):
-    """Runs ``hook(module)`` once, right after the top-level module ``name`` is first imported."""
+    """Runs ``hook(module)`` once, right after the top-level module ``name`` is first imported
+    (and ``before()``, if given, right before)."""
 
-    def __init__(self, name: str, hook):
-        self.name, self.hook = name, hook
+    def __init__(self, name: str, hook, before=None):
+        self.name, self.hook, self.before = name, hook, before
 
     def find_spec(self, fullname, path=None, target=None):
         if fullname != self.name:
             return None
         sys.meta_path.remove(self)
+        if self.before is not None:
+            self.before()
         spec = importlib.util.find_spec(fullname)
         if spec is None or spec.loader is None:
             return spec
@@ -141,6 +145,42 @@ class _AfterImport(importlib.abc.MetaPathFinder):
 
         spec.loader = Loader()
         return spec
+
+
+_FATAL_SIGNALS = ("SIGSEGV", "SIGBUS", "SIGILL", "SIGFPE", "SIGABRT", "SIGTERM")
+
+
+def _signal_actions(saved: dict | None = None) -> dict:
+    """The C-level actions of the fatal signals (raw ``struct sigaction``s), or, given ``saved``,
+    those actions put back. Linux only (an empty dict elsewhere)."""
+    import ctypes
+    import signal
+
+    if not sys.platform.startswith("linux"):
+        return {}
+    libc = ctypes.CDLL(None)
+    if saved is not None:
+        for number, action in saved.items():
+            libc.sigaction(number, action, None)
+        return saved
+    out = {}
+    for name in _FATAL_SIGNALS:
+        action = ctypes.create_string_buffer(512)  # glibc's struct sigaction is 152 bytes
+        if libc.sigaction(int(getattr(signal, name)), None, action) == 0:
+            out[int(getattr(signal, name))] = action
+    return out
+
+
+def _keep_fault_handlers(module: str) -> None:
+    """Put the fatal signals' handlers back after ``module``'s first import: pycolmap installs
+    glog's failure handler, which deadlocked a process that crashed inside the C++ unwinder (it
+    unwinds again for its stack trace and waits for the unwinder's lock forever), so a crash
+    hung instead of ending. Python's faulthandler, or the default action, stays in charge."""
+    if module in sys.modules or any(isinstance(f, _AfterImport) and f.name == module for f in sys.meta_path):
+        return
+    saved: dict = {}
+    sys.meta_path.insert(0, _AfterImport(module, lambda _: _signal_actions(saved),
+                                         before=lambda: saved.update(_signal_actions())))
 
 
 def _point_drjit_at_llvm19() -> None:

@@ -50,6 +50,39 @@ def mitsuba_cpu():
     return set_mitsuba_variant("cpu", 2)
 
 
+_SLOW_S = 60.0
+_session: dict = {}
+
+
+def _mappings() -> int:
+    """This process's memory mappings (Linux; 0 elsewhere)."""
+    try:
+        with open("/proc/self/maps") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return 0
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_code(request):
+    """After each test module, drop Dr.Jit's compiled kernels and JAX's compiled programs: each
+    holds memory mappings of its own, and the whole suite in one process reached the kernel's
+    limit (``vm.max_map_count``, 65,530): the next compile failed and the process hung (the
+    failure signal handler that pycolmap installs deadlocked in the unwinder)."""
+    yield
+    import gc
+    import sys
+
+    held = _mappings()
+    if "drjit" in sys.modules:
+        sys.modules["drjit"].flush_kernel_cache()
+    if "jax" in sys.modules:
+        sys.modules["jax"].clear_caches()
+    gc.collect()
+    if held > _session.get("peak", (0,))[0]:
+        _session["peak"] = (held, _mappings(), request.node.name)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)
@@ -68,3 +101,31 @@ def synthesized(tmp_path_factory, case: str, n_views: int, res: int, spp: int):
     out = tmp_path_factory.mktemp("synth") / case
     synthesize(case, out, n_views=n_views, res=res, spp=spp, progress=False)
     return out
+
+
+def pytest_configure(config):
+    import time
+
+    _session.update(config=config, start=time.monotonic())
+
+
+def pytest_runtest_logreport(report):
+    """Name each test phase over a minute as it ends, with the time since the session began: a CI
+    log cut off by its time limit still says where the time went."""
+    tr = _session["config"].pluginmanager.get_plugin("terminalreporter") if _session else None
+    if report.duration >= _SLOW_S and tr is not None:
+        import time
+
+        tr.write_line(f"[slow] {report.nodeid} ({report.when}) {report.duration:.0f} s, "
+                      f"{time.monotonic() - _session['start']:.0f} s into the session")
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The most memory mappings the process held at the end of a test module, against the limit."""
+    try:
+        limit = open("/proc/sys/vm/max_map_count").read().strip()
+    except OSError:
+        return
+    held, left, module = _session.get("peak", (0, 0, "none"))
+    terminalreporter.write_line(f"memory mappings: at most {held} at a module's end ({module}; {left} after "
+                                f"releasing compiled code; vm.max_map_count {limit})")

@@ -63,3 +63,15 @@ def test_compilation_cache_is_locked_for_processes_side_by_side(tmp_path):
     assert runs[0].stdout == runs[1].stdout
     assert (tmp_path / ".lockfile").exists()
     assert any(p.name.endswith("-cache") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("guarded", [True, False])
+def test_a_crash_after_importing_pycolmap_is_reported_by_python(guarded):
+    """pycolmap installs glog's failure signal handler on import; it once deadlocked a crashed
+    test process for good. After ``configure_threads`` (every entry point calls it) Python's
+    faulthandler still reports a crash and the process ends; without it, glog's handler runs."""
+    setup = "from ipm.runtime import configure_threads; configure_threads(1); " if guarded else ""
+    code = f"import faulthandler; faulthandler.enable(); {setup}import pycolmap, ctypes; ctypes.string_at(0)"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode != 0
+    assert ("Fatal Python error: Segmentation fault" in res.stderr) == guarded, res.stderr[-2000:]
