@@ -64,15 +64,20 @@ class DiffProfile:
     """Adam steps given to each neighbour before it is compared."""
     decide_steps: int = 0
     """Adam steps each value of a categorical parameter (``Generator.categorical``: buildings'
-    roof type) gets at the previous stage's resolution before the last refinement stage; the
-    values are compared at that stage's resolution (``ipm.methods.diff.decide``); 0: none. Off by
-    default: with 30 steps the dev buildings' mean IoU moved by +0.002 (one view, seeds 0 and 1;
-    building_d3 seed 1 0.907 -> 0.979, building_d2 0.951 -> 0.921 twice: from one view a low
-    gable and a hip roof are a few per cent apart in the loss either way). Session 11, with
-    refine_candidates 3 and polish's categorical moves, 30 steps on 7 of 18 dev runs: building_d5
-    seed 0 0.940 -> 0.991, building_d6 seed 1 0.884 -> 0.974, building_d2 seed 1 0.917 -> 0.951 (as
-    with polish's moves alone), building_d2 seed 0 0.940 -> 0.910, the other three within 0.004;
-    not yet on the other 11 runs, so still off."""
+    roof type), and with ``decide_turns`` each value turned a quarter, gets at the previous
+    stage's resolution before the last refinement stage; they are compared at that stage's
+    resolution (``ipm.methods.diff.decide``); 0: none. 30 in the default profile: on the dev
+    buildings (one view, 256 px, window masks, seeds 0 and 1; building_1 and building_d1-d3,
+    d5-d8) the mean 64-view IoU went from 0.942 to 0.958, worst 0.784 either way; five quarter-turned
+    fits came back (building_d5 seed 0, building_d7 and building_d8 both seeds: 0.936-0.978 ->
+    0.991-0.995) and two wrong roofs (building_d5 seed 1 0.947 -> 0.986, building_d6 seed 1 0.884
+    -> 0.973); where a low gable and a hip roof are within a few per cent in the loss, the pick
+    can go the wrong way: building_d2 0.940 -> 0.911 and 0.951 -> 0.918, building_d3 seed 1
+    0.945 -> 0.916."""
+    decide_turns: bool = True
+    """Whether decide also tries each value turned a quarter (width and depth traded, the counts
+    the views show read in again) for a generator with a front (``Generator.marker``): one view
+    without the door cannot tell a house's front from its side, but a gable's ridge can."""
     focal_sweep: int = 0
     """For a camera whose field of view is unknown (``ipm.photo``): before the last refinement
     stage, the focal gene is held at the estimate's and at this many points on either side,
@@ -125,7 +130,7 @@ PROFILES = {
     # 0.906 to 0.914 for about 30 s more per single-view cup
     "default": DiffProfile(population=16, ga_iterations=12, adam_per_iteration=64, memetic_res=96,
                            refine_res=(128, 256), refine_iterations=(100, 60), refine_candidates=3,
-                           focal_sweep=3),
+                           decide_steps=30, focal_sweep=3),
     "smoke": DiffProfile(population=4, ga_iterations=2, adam_per_iteration=6, memetic_res=32,
                          refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2,
                          polish_sweeps=1, polish_steps=1, focal_sweep=1, focal_steps=1),

@@ -18,7 +18,7 @@ from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
-from ipm.methods.diff import Objective, class_masks, decide, neighbours, polish, read_counts_into
+from ipm.methods.diff import Objective, class_masks, decide, neighbours, polish, read_counts_into, turned
 from ipm.metrics.recovery import true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -270,6 +270,35 @@ def test_decide_tries_every_kind_of_roof():
     assert round(best[i] * 2) == 2
     np.testing.assert_array_equal(np.delete(best, i), np.delete(z, i))  # no gradient: nothing else moved
     assert round(decide(problem, z, get_profile("default", decide_steps=0), lowest_at(1), lowest_at(2))[i] * 2) == 0
+
+
+def test_decide_tries_every_roof_turned_a_quarter_too():
+    """With ``recount`` each roof type is also tried turned a quarter, width and depth traded and
+    the counts read in again (here: recorded); the turned gable wins where the scoring objective
+    wants it, and without ``recount`` nothing turns."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    ix, n = gen.spec.index, problem.n_shape
+    x = gen.presets["house"].copy()
+    x[ix["roof_type"]], x[ix["width"]], x[ix["depth"]] = 2, 1.2, 0.8
+    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
+    want = turned(problem, z, np.pi / 2)
+    want[ix["roof_type"]] = 0.5  # a gable
+
+    def score(v, seed=None):
+        return float(np.sum((v - want) ** 2)), np.zeros_like(v)
+
+    recounted = []
+    best = decide(problem, z, get_profile("default", decide_steps=2), lambda v, seed=None: (0.0, np.zeros_like(v)),
+                  score, recount=lambda v: recounted.append(v) or v)
+    np.testing.assert_allclose(best, want)
+    assert len(recounted) == 3
+    back = gen.spec.from_unit(best[:n])
+    assert (back[ix["width"]], back[ix["depth"]]) == pytest.approx((0.8, 1.2))
+    assert np.angle(np.exp(1j * (best[n] - z[n]))) == pytest.approx(np.pi / 2)
+    plain = decide(problem, z, get_profile("default", decide_steps=2), lambda v, seed=None: (0.0, np.zeros_like(v)),
+                   score)
+    assert plain[n] == z[n] and round(plain[ix["roof_type"]] * 2) == 1
 
 
 def test_seen_counts_follow_the_facades_the_camera_faces():

@@ -7,9 +7,10 @@ between the rendered and the reference masks of that class over a mean pyramid (
 images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
 (``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
 hill climb (:func:`polish`), coarse-to-fine Adam with the counts read off the class masks
-before each stage (:func:`read_counts_into`) and, optionally, every kind of a categorical part
-(a roof) tried before the last (:func:`decide`), for a camera of unknown field of view a sweep
-over its focal length before the last (:func:`sweep_focal`), Occam step.
+before each stage (:func:`read_counts_into`) and every kind of a categorical part (a roof),
+as it stands and turned a quarter, tried before the last (:func:`decide`; the default profile),
+for a camera of unknown field of view a sweep over its focal length before the last
+(:func:`sweep_focal`), Occam step.
 """
 from __future__ import annotations
 
@@ -235,12 +236,15 @@ def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
 
 
 def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objective, score_objective,
-           on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+           on_eval=lambda ind: None, record=lambda name, loss: None, recount=None) -> np.ndarray:
     """Every value of each categorical parameter (``Generator.categorical``: a roof's type) given
     ``decide_steps`` Adam steps under ``steps_objective`` from ``z``, the current value too (none
     is favoured by a longer refinement), and compared under ``score_objective`` (same render
     seeds): the lowest wins. Polish's few steps at the memetic resolution cannot carry a flat roof
-    to a hip roof's basin (its walls and slope must move together)."""
+    to a hip roof's basin (its walls and slope must move together). With ``recount`` (``z`` ->
+    ``z`` with the counts the views show read in) each value is also tried turned a quarter
+    (:func:`turned`): a near-square house fitted a quarter off with a pyramid-like hip roof
+    matches a gable roof only turned, since a gable's ridge has a direction."""
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = _scorer(score_objective, (10_005, 10_006))
     for name in gen.categorical:
@@ -251,10 +255,14 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
         for k in range(int(spec.levels[i])):
             alt = z.copy()
             alt[i] = k / (spec.levels[i] - 1)
-            cand, loss = _tried(problem, steps_objective, alt, f"{name}={spec.lower[i] + k:g}", profile.decide_steps,
-                                profile, score, on_eval, record)
-            if loss < best_loss:
-                best, best_loss = cand, loss
+            label = f"{name}={spec.lower[i] + k:g}"
+            tries = [(label, alt)] + ([(f"{label} turned", recount(turned(problem, alt, np.pi / 2)))]
+                                      if recount is not None else [])
+            for label, start in tries:
+                cand, loss = _tried(problem, steps_objective, start, label, profile.decide_steps, profile, score,
+                                    on_eval, record)
+                if loss < best_loss:
+                    best, best_loss = cand, loss
         z = best
     return z
 
@@ -331,6 +339,17 @@ def _choose(zs: list[np.ndarray], objective, record) -> np.ndarray:
     return zs[int(np.argmin(losses))]
 
 
+def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
+    """``z`` turned by ``angle`` about +y; a quarter turn also trades the footprint's sides
+    (``Generator.quarter_turned``), so that the turned object covers the same ground."""
+    spec, n = problem.spec, problem.n_shape
+    z = z.copy()
+    if abs(np.cos(angle)) < 0.5:
+        z[:n] = spec.to_unit(problem.generator.quarter_turned(spec.from_unit(z[:n])))
+    z[n] += angle
+    return problem.clip(z)
+
+
 def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """``z`` turned when the views' marker class says it faces the wrong way
     (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
@@ -345,11 +364,7 @@ def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.
     marker = class_masks(gen, views, gen.marker[0]) if gen.marker else None
     turn = 0.0 if marker is None else marker_turn(gen, spec.from_unit(z[:n]), problem.to_world(z), views, marker[0])
     if turn:
-        z = z.copy()
-        if abs(np.cos(turn)) < 0.5:  # a quarter turn: the footprint's sides trade places
-            z[:n] = spec.to_unit(gen.quarter_turned(spec.from_unit(z[:n])))
-        z[n] += turn
-        z = problem.clip(z)
+        z = turned(problem, z, turn)
         changes.append(f"yaw{np.degrees(turn):+.0f}")
     x = spec.from_unit(z[:n])
     pose = problem.decode(z)["pose"]
@@ -388,7 +403,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
              * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
-             * profile.decide_steps + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
+             * profile.decide_steps * (1 + (profile.decide_turns and bool(problem.generator.marker)))
+             + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
              + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
@@ -426,7 +442,11 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
-            zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res)) for z in zs]
+            reads = profile.read_counts and profile.window_weight > 0
+            recount = ((lambda z: read_counts_into(problem, views, z)[0] if reads else z)
+                       if profile.decide_turns and problem.generator.marker else None)
+            zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res), recount)
+                  for z in zs]
         if stage == len(profile.refine_res) - 1 and sweeps_focal(problem, profile):
             state["stage"] = "focal"
             zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
