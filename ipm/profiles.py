@@ -68,7 +68,7 @@ class DiffProfile:
     stage's resolution before the last refinement stage; they are compared at that stage's
     resolution (``ipm.methods.diff.decide``); 0: none. 30 in the default profile: on the dev
     buildings (one view, 256 px, window masks, seeds 0 and 1; building_1 and building_d1-d3,
-    d5-d8) the mean 64-view IoU went from 0.942 to 0.958, worst 0.784 either way; five quarter-turned
+    d5-d8) the mean 64-view IoU went from 0.942 to 0.957, worst 0.784 either way; five quarter-turned
     fits came back (building_d5 seed 0, building_d7 and building_d8 both seeds: 0.936-0.978 ->
     0.991-0.995) and two wrong roofs (building_d5 seed 1 0.947 -> 0.986, building_d6 seed 1 0.884
     -> 0.973); where a low gable and a hip roof are within a few per cent in the loss, the pick
