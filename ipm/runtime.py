@@ -53,7 +53,7 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
     _THREADS = threads
     if "jax" in sys.modules:
         _start_xla_cpu(threads)
-    elif not any(isinstance(f, _AfterImport) and f.name == "jax" for f in sys.meta_path):
+    elif not _AfterImport.waiting("jax"):
         sys.meta_path.insert(0, _AfterImport("jax", lambda module: _start_xla_cpu(_THREADS)))
     _keep_fault_handlers("pycolmap")
 
@@ -124,6 +124,11 @@ class _AfterImport(importlib.abc.MetaPathFinder):
     def __init__(self, name: str, hook, before=None):
         self.name, self.hook, self.before = name, hook, before
 
+    @staticmethod
+    def waiting(name: str) -> bool:
+        """Whether a hook for ``name`` is installed and its module not yet imported."""
+        return any(isinstance(f, _AfterImport) and f.name == name for f in sys.meta_path)
+
     def find_spec(self, fullname, path=None, target=None):
         if fullname != self.name:
             return None
@@ -150,25 +155,29 @@ class _AfterImport(importlib.abc.MetaPathFinder):
 _FATAL_SIGNALS = ("SIGSEGV", "SIGBUS", "SIGILL", "SIGFPE", "SIGABRT", "SIGTERM")
 
 
-def _signal_actions(saved: dict | None = None) -> dict:
-    """The C-level actions of the fatal signals (raw ``struct sigaction``s), or, given ``saved``,
-    those actions put back. Linux only (an empty dict elsewhere)."""
+def _signal_actions() -> dict:
+    """The C-level actions of the fatal signals (raw ``struct sigaction``s, by signal number).
+    Linux only (an empty dict elsewhere)."""
     import ctypes
     import signal
 
     if not sys.platform.startswith("linux"):
         return {}
-    libc = ctypes.CDLL(None)
-    if saved is not None:
-        for number, action in saved.items():
-            libc.sigaction(number, action, None)
-        return saved
-    out = {}
-    for name in _FATAL_SIGNALS:
+    libc, out = ctypes.CDLL(None), {}
+    for number in (int(getattr(signal, name)) for name in _FATAL_SIGNALS):
         action = ctypes.create_string_buffer(512)  # glibc's struct sigaction is 152 bytes
-        if libc.sigaction(int(getattr(signal, name)), None, action) == 0:
-            out[int(getattr(signal, name))] = action
+        if libc.sigaction(number, None, action) == 0:
+            out[number] = action
     return out
+
+
+def _set_signal_actions(actions: dict) -> None:
+    """Install ``actions`` (from :func:`_signal_actions`)."""
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    for number, action in actions.items():
+        libc.sigaction(number, action, None)
 
 
 def _keep_fault_handlers(module: str) -> None:
@@ -176,10 +185,10 @@ def _keep_fault_handlers(module: str) -> None:
     glog's failure handler, which deadlocked a process that crashed inside the C++ unwinder (it
     unwinds again for its stack trace and waits for the unwinder's lock forever), so a crash
     hung instead of ending. Python's faulthandler, or the default action, stays in charge."""
-    if module in sys.modules or any(isinstance(f, _AfterImport) and f.name == module for f in sys.meta_path):
+    if module in sys.modules or _AfterImport.waiting(module):
         return
     saved: dict = {}
-    sys.meta_path.insert(0, _AfterImport(module, lambda _: _signal_actions(saved),
+    sys.meta_path.insert(0, _AfterImport(module, lambda _: _set_signal_actions(saved),
                                          before=lambda: saved.update(_signal_actions())))
 
 

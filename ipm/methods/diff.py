@@ -255,11 +255,11 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
         for k in range(int(spec.levels[i])):
             alt = z.copy()
             alt[i] = k / (spec.levels[i] - 1)
-            label = f"{name}={spec.lower[i] + k:g}"
-            tries = [(label, alt)] + ([(f"{label} turned", recount(turned(problem, alt, np.pi / 2)))]
+            value = f"{name}={spec.lower[i] + k:g}"
+            tries = [(value, alt)] + ([(f"{value} turned", recount(turned(problem, alt, np.pi / 2)))]
                                       if recount is not None else [])
-            for label, start in tries:
-                cand, loss = _tried(problem, steps_objective, start, label, profile.decide_steps, profile, score,
+            for tag, start in tries:
+                cand, loss = _tried(problem, steps_objective, start, tag, profile.decide_steps, profile, score,
                                     on_eval, record)
                 if loss < best_loss:
                     best, best_loss = cand, loss
@@ -400,10 +400,12 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     """Best ``z`` for ``views`` and the trace (one row per evaluation; at the end of each stage its
     ``iou`` column holds the input-view IoU of the stage's best, :func:`input_iou`)."""
     rng = np.random.default_rng(seed)
+    reads = profile.read_counts and profile.window_weight > 0  # counts read off the class masks
+    turns = profile.decide_turns and bool(problem.generator.marker)  # decide tries quarter turns too
     total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
              * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
-             * profile.decide_steps * (1 + (profile.decide_turns and bool(problem.generator.marker)))
+             * profile.decide_steps * (1 + turns)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
              + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
@@ -442,9 +444,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
-            reads = profile.read_counts and profile.window_weight > 0
-            recount = ((lambda z: read_counts_into(problem, views, z)[0] if reads else z)
-                       if profile.decide_turns and problem.generator.marker else None)
+            recount = (lambda z: read_counts_into(problem, views, z)[0] if reads else z) if turns else None
             zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res), recount)
                   for z in zs]
         if stage == len(profile.refine_res) - 1 and sweeps_focal(problem, profile):
@@ -452,7 +452,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
         refined = []
         for z in zs:
-            if profile.read_counts and profile.window_weight > 0:
+            if reads:
                 z, changes = read_counts_into(problem, views, z)
                 rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0)
                             for c in changes)
