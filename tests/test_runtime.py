@@ -65,6 +65,25 @@ def test_compilation_cache_is_locked_for_processes_side_by_side(tmp_path):
     assert any(p.name.endswith("-cache") for p in tmp_path.iterdir())
 
 
+def test_the_compilation_cache_grows_past_an_entry_without_its_access_time(tmp_path):
+    """An entry whose access-time file is missing (written without a size limit, or by a process
+    killed between its two writes) made every later write fail; configure_threads restores the
+    file, so a job's program is written beside it."""
+    old = tmp_path / "jit_old-0123-cache"
+    old.write_bytes(b"not a program")
+    code = ("from ipm.runtime import configure_threads; configure_threads(1)\n"
+            "import jax, jax.numpy as jnp\n"
+            "print(float(jax.jit(lambda x: jnp.cumsum(jnp.cos(x) @ x.T))(jnp.ones((150, 150))).sum()))\n")
+    env = {**os.environ, "IPM_JAX_CACHE": str(tmp_path), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env.pop("JAX_COMPILATION_CACHE_MAX_SIZE", None)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "Error writing persistent compilation cache entry" not in res.stderr
+    assert (tmp_path / "jit_old-0123-atime").exists()
+    assert len([p for p in tmp_path.iterdir() if p.name.endswith("-cache")]) > 1
+
+
 @pytest.mark.parametrize("guarded", [True, False])
 def test_a_crash_after_importing_pycolmap_is_reported_by_python(guarded):
     """pycolmap installs glog's failure signal handler on import; it once deadlocked a crashed
