@@ -78,22 +78,20 @@ def compile_cache_dir() -> str | None:
     return str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ipm" / "jax")
 
 
-def repair_compile_cache(folder: str | Path) -> int:
+def repair_compile_cache(folder: str | Path) -> None:
     """Give every entry of JAX's compilation cache in ``folder`` that lacks one its access-time file
-    (the entry's modification time), and return how many were missing. With a size limit JAX reads
-    every entry's access time before it writes a new one, and one missing file (an entry written
-    without the limit, or by a process killed between the two writes) makes every later write fail:
-    the cache then never grows and each process compiles again (a building's loss: 17 s, 4 s cached)."""
-    folder, missing = Path(folder), 0
+    (the entry's modification time). With a size limit JAX reads every entry's access time before
+    it writes a new one, and one missing file (an entry written without the limit, or by a process
+    killed between the two writes) makes every later write fail: the cache then never grows and
+    each process compiles again (a building's loss: 17 s, 4 s cached)."""
+    folder = Path(folder)
     for entry in folder.glob("*-cache") if folder.is_dir() else ():
         atime = entry.with_name(entry.name[: -len("-cache")] + "-atime")
         if not atime.exists():
             try:
                 atime.write_bytes(entry.stat().st_mtime_ns.to_bytes(8, "little"))
-                missing += 1
             except OSError:  # removed by an eviction meanwhile, or a read-only folder
                 pass
-    return missing
 
 
 def thread_count() -> int:

@@ -47,6 +47,15 @@ def test_thread_count_follows_the_configured_threads(monkeypatch):
     assert rt.thread_count() == len(os.sched_getaffinity(0))
 
 
+def _job_with_cache(folder, code: str) -> subprocess.CompletedProcess:
+    """``python -c code`` with IPM_JAX_CACHE at ``folder``, every program cached however quick to
+    compile, and none of JAX's own cache settings from this environment."""
+    env = {**os.environ, "IPM_JAX_CACHE": str(folder), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env.pop("JAX_COMPILATION_CACHE_MAX_SIZE", None)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+
+
 def test_compilation_cache_is_locked_for_processes_side_by_side(tmp_path):
     """Jobs share JAX's persistent compilation cache: it has a size limit, so JAX locks the folder
     around reads and writes (a job that read a half-written program hung), and a second process
@@ -55,10 +64,7 @@ def test_compilation_cache_is_locked_for_processes_side_by_side(tmp_path):
             "import jax, jax.numpy as jnp, os\n"
             "assert jax.config.jax_compilation_cache_max_size > 0\n"
             "print(float(jax.jit(lambda x: jnp.cumsum(jnp.sin(x) @ x.T))(jnp.ones((200, 200))).sum()))\n")
-    env = {**os.environ, "IPM_JAX_CACHE": str(tmp_path), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    env.pop("JAX_COMPILATION_CACHE_MAX_SIZE", None)
-    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env) for _ in range(2)]
+    runs = [_job_with_cache(tmp_path, code) for _ in range(2)]
     assert all(r.returncode == 0 for r in runs), runs[-1].stderr[-2000:]
     assert runs[0].stdout == runs[1].stdout
     assert (tmp_path / ".lockfile").exists()
@@ -74,10 +80,7 @@ def test_the_compilation_cache_grows_past_an_entry_without_its_access_time(tmp_p
     code = ("from ipm.runtime import configure_threads; configure_threads(1)\n"
             "import jax, jax.numpy as jnp\n"
             "print(float(jax.jit(lambda x: jnp.cumsum(jnp.cos(x) @ x.T))(jnp.ones((150, 150))).sum()))\n")
-    env = {**os.environ, "IPM_JAX_CACHE": str(tmp_path), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    env.pop("JAX_COMPILATION_CACHE_MAX_SIZE", None)
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    res = _job_with_cache(tmp_path, code)
     assert res.returncode == 0, res.stderr[-2000:]
     assert "Error writing persistent compilation cache entry" not in res.stderr
     assert (tmp_path / "jit_old-0123-atime").exists()
