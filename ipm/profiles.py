@@ -59,7 +59,10 @@ class DiffProfile:
     polish_sweeps: int = 2
     """Sweeps of the discrete hill climbing after the memetic stage (``ipm.methods.diff.polish``:
     each many-valued discrete parameter one value up and down, a categorical one to every other
-    value, and the half turn); 0: none."""
+    value, and the half turn; with ``read_counts`` not the counts read off the class masks just
+    before, nor those of sides no view faces: no loss tells their values apart, and the next
+    reading overwrites them; dev buildings, one view, seeds 0 and 1, 16 runs: mean IoU 0.957 ->
+    0.959, worst 0.784 -> 0.800, building_1's polish 50 s -> 22 s on 2 threads); 0: none."""
     polish_steps: int = 6
     """Adam steps given to each neighbour before it is compared."""
     decide_steps: int = 0

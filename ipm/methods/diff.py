@@ -5,12 +5,12 @@ mask, plus the generator's smoothness prior; for a generator with a ``mask_class
 windows) and views with semantic images, plus ``window_weight`` times the ``window_loss`` (MSE or Dice)
 between the rendered and the reference masks of that class over a mean pyramid (without semantic
 images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
-(``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, discrete
-hill climb (:func:`polish`), coarse-to-fine Adam with the counts read off the class masks
-before each stage (:func:`read_counts_into`) and every kind of a categorical part (a roof),
-as it stands and turned a quarter, tried before the last (:func:`decide`; the default profile),
-for a camera of unknown field of view a sweep over its focal length before the last
-(:func:`sweep_focal`), Occam step.
+(``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, the
+counts read off the class masks (:func:`read_counts_into`), discrete hill climb over the rest
+(:func:`polish`), coarse-to-fine Adam with the counts read again before each stage and every
+kind of a categorical part (a roof), as it stands and turned a quarter, tried before the last
+(:func:`decide`; the default profile), for a camera of unknown field of view a sweep over its
+focal length before the last (:func:`sweep_focal`), Occam step.
 """
 from __future__ import annotations
 
@@ -213,17 +213,17 @@ def _tried(problem: Problem, objective, alt: np.ndarray, name: str, steps: int, 
 
 
 def polish(problem: Problem, objective, z: np.ndarray, profile: DiffProfile,
-           on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
-    """Discrete hill climbing after the memetic stage: parameter by parameter, try the current
-    point's :func:`neighbours` with a few Adam steps each (``polish_steps``) and move to the first
-    that lowers the loss (same render seeds on both sides); up to ``polish_sweeps`` sweeps. The
-    memetic stage moves one many-valued gene at a time by chance, so a window count one off on a
-    facade would otherwise be left standing."""
+           on_eval=lambda ind: None, record=lambda name, loss: None, settled=frozenset()) -> np.ndarray:
+    """Discrete hill climbing after the memetic stage: parameter by parameter (but those named in
+    ``settled``), try the current point's :func:`neighbours` with a few Adam steps each
+    (``polish_steps``) and move to the first that lowers the loss (same render seeds on both
+    sides); up to ``polish_sweeps`` sweeps. The memetic stage moves one many-valued gene at a time
+    by chance, so a window count one off on a facade would otherwise be left standing."""
     score = _scorer(objective, (10_003, 10_004))
     best = score(z)
     for _ in range(profile.polish_sweeps):
         improved = False
-        for param in list(neighbours(problem, z)):
+        for param in [p for p in neighbours(problem, z) if p not in settled]:
             for name, alt in neighbours(problem, z).get(param, []):
                 cand, loss = _tried(problem, objective, alt, name, profile.polish_steps, profile, score, on_eval,
                                     record)
@@ -350,16 +350,19 @@ def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
     return problem.clip(z)
 
 
-def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def read_counts_into(problem: Problem, views: Views,
+                     z: np.ndarray) -> tuple[np.ndarray, list[str], frozenset[str]]:
     """``z`` turned when the views' marker class says it faces the wrong way
     (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
     class masks show set to what they show (:func:`ipm.facades.read_counts` on the facades the
-    views face; a storey more or less keeps the walls' height: ``Generator.change_count``), and
-    the changes made; ``z`` itself when the views have no class masks or the generator no facades."""
+    views face; a storey more or less keeps the walls' height: ``Generator.change_count``); the
+    changes made; and the counts the views settle, read or on a side no view faces (no loss
+    can tell their values apart, so :func:`polish` leaves them). ``z`` itself, no change and
+    nothing settled when the views have no class masks or the generator no facades."""
     gen, spec, n = problem.generator, problem.spec, problem.n_shape
     masks = class_masks(gen, views)
     if masks is None or not gen.counts:
-        return z, []
+        return z, [], frozenset()
     changes = []
     marker = class_masks(gen, views, gen.marker[0]) if gen.marker else None
     turn = 0.0 if marker is None else marker_turn(gen, spec.from_unit(z[:n]), problem.to_world(z), views, marker[0])
@@ -376,7 +379,7 @@ def read_counts_into(problem: Problem, views: Views, z: np.ndarray) -> tuple[np.
             changes.append(f"{name}={value}")
     z = z.copy()
     z[:n] = spec.to_unit(x)
-    return problem.clip(z), changes
+    return problem.clip(z), changes, frozenset(found) | (frozenset(gen.counts) - frozenset(seen))
 
 
 def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
@@ -431,14 +434,25 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         """The input-view IoU of the current stage's best, on the stage's last trace row."""
         ious[len(rows) - 1] = input_iou(problem, views, z, max(profile.refine_lod, least))
 
+    def read(z: np.ndarray, res: int) -> tuple[np.ndarray, frozenset[str]]:
+        """``z`` with the counts the views show read in (trace rows for the changes), and the
+        counts they settle; ``z`` and none without reading."""
+        if not reads:
+            return z, frozenset()
+        z, changes, settled = read_counts_into(problem, views, z)
+        rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0) for c in changes)
+        return z, settled
+
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     final = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
                     prepare=objective.match_area, yaw_free=problem.yaw_free)
     checkpoint(final[0].best_z)
     state["stage"] = "polish"
-    zs = [polish(problem, objective, ind.best_z, profile, on_eval, recorder("polish", state["res"]))
-          for ind in finalists(problem, final, profile.refine_candidates)]
+    zs = []
+    for ind in finalists(problem, final, profile.refine_candidates):
+        z, settled = read(ind.best_z, state["res"])
+        zs.append(polish(problem, objective, z, profile, on_eval, recorder("polish", state["res"]), settled))
     checkpoint(zs[0])
     for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
@@ -452,10 +466,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
         refined = []
         for z in zs:
-            if reads:
-                z, changes = read_counts_into(problem, views, z)
-                rows.extend(("read", res, len(rows), c, np.nan, state["best"], time.perf_counter() - t0)
-                            for c in changes)
+            z = read(z, res)[0]
             state.update(stage="refine", res=res, best=np.inf)
             ind = Individual(z, problem.key(z), "refine", lr=profile.lr * 0.4)
             adam_steps(ind, iters + 1, objective, problem.clip, profile.reject_ratio, on_eval)
