@@ -29,11 +29,22 @@ def test_every_case_says_its_split_and_the_test_split_is_complete():
         case_split({"name": "x", "split": "train"})
 
 
+def _within_rounding(value):
+    """``value`` with every float as ``pytest.approx`` at 1e-12 relative: numpy's vectorised sin and
+    power differ in the last bit between CPUs (cup_t1's ``profile_5`` on an AVX-512 machine), and
+    the case files hold one machine's draw."""
+    if isinstance(value, dict):
+        return {k: _within_rounding(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_within_rounding(v) for v in value]
+    return pytest.approx(value, rel=1e-12, abs=1e-15) if isinstance(value, float) else value
+
+
 @pytest.mark.parametrize("name,generator,seed,options,split", SAMPLED, ids=[s[0] for s in SAMPLED])
 def test_sampled_cases_are_what_the_seeded_sampler_draws(name, generator, seed, options, split):
     on_disk = load_case(name)
     assert on_disk["split"] == split
-    assert on_disk == sample_case(name, generator, seed, split, **options)  # reproducible from the seed
+    assert on_disk == _within_rounding(sample_case(name, generator, seed, split, **options))  # from the seed
     gen = get_generator(generator)
     x = gen.spec.from_dict(on_disk["source"]["params"])
     distances = preset_distances(gen, x)
