@@ -356,8 +356,9 @@ def read_counts_into(problem: Problem, views: Views,
     (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
     class masks show set to what they show (:func:`ipm.facades.read_counts` on the facades the
     views face; a storey more or less keeps the walls' height: ``Generator.change_count``); the
-    changes made; and the counts the views settle, read or on a side no view faces (no loss
-    can tell their values apart, so :func:`polish` leaves them). ``z`` itself, no change and
+    changes made; and the counts the views settle, for :func:`polish` to leave: those read (the
+    next reading would set them again) and those of sides no view faces (no loss tells their
+    values apart). ``z`` itself, no change and
     nothing settled when the views have no class masks or the generator no facades."""
     gen, spec, n = problem.generator, problem.spec, problem.n_shape
     masks = class_masks(gen, views)
