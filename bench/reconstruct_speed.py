@@ -139,7 +139,7 @@ def main() -> None:
                         keep = Path(args.keep) / case
                         keep.mkdir(parents=True, exist_ok=True)
                         shutil.copy(tmp / case / "reference.ply", keep / "reference.ply")
-                        for name in ("mesh.ply", "params.json"):
+                        for name in ("mesh.ply", "params.json", "trace.csv", "timing.json"):
                             shutil.copy(out / name, keep / f"{renderer}_seed{seed}_{name}")
                     spec = get_generator(generators[case]).spec
                     discrete = {name: info["params"][name] for name, d in zip(spec.names, spec.discrete) if d}

@@ -151,3 +151,22 @@ def test_finalists_are_distinct_basins():
     assert [i.best_loss for i in finalists(problem, final, 3)] == [0.1, 0.3, 0.4]
     assert [i.best_loss for i in finalists(problem, final, 1)] == [0.1]
     assert len(finalists(problem, final, 10)) == 4
+
+
+def test_input_iou_is_nan_without_open3d(tiny_case, monkeypatch):
+    """The trace's IoU column, a value in (0, 1) for a start unlike the object; where open3d is
+    not installed (the GPU machine) the column is NaN and the fit still runs."""
+    import importlib.util
+
+    from ipm.methods.diff import input_iou
+
+    views = load_views(tiny_case / "transforms.json").subset([0])
+    truth = json.loads((tiny_case / "ground_truth.json").read_text())
+    gen = get_generator("dishes")
+    problem = Problem(gen, *estimate_anchor(views))
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.0)
+    start = input_iou(problem, views, z, 0, res=64)
+    assert 0.0 < start < 1.0 and truth["generator"] == "dishes"
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "open3d" else find_spec(name, *a))
+    assert np.isnan(input_iou(problem, views, z, 0, res=64))

@@ -137,3 +137,15 @@ def test_vertices_behind_the_camera_are_dropped():
     c2w = orbit_camera([0, 0, 0], 2.0, 0, 0)[None]
     tri = np.array([[-0.3, -0.2, 0.0], [0.35, -0.25, 0.0], [0.05, 0.4, 3.0]])  # third vertex behind the eye
     assert EdgeRenderer(c2w, FOV, 32, 32).render(tri, np.array([[0, 1, 2]])).sum() == 0
+
+
+def test_span_budget_headroom_by_backend(monkeypatch):
+    """A third more spans than needed on a CPU (a quarter when grown: work grows with the budget);
+    three times on a GPU, where each new budget is a long compilation and a bigger one costs little."""
+    import jax
+
+    from ipm.render import edges
+
+    assert edges.with_headroom(300, grown=False) == 400 and edges.with_headroom(300, grown=True) == 375
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert edges.with_headroom(300, grown=False) == edges.with_headroom(300, grown=True) == 900

@@ -386,12 +386,16 @@ def read_counts_into(problem: Problem, views: Views,
 def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
     """Mean IoU of the input masks and the silhouettes of ``z``'s mesh from the input cameras (open3d
     ray casting at ``res`` px): the trace's progress in the metric's own terms. NaN where the
-    cameras are not known (a photo) or the images are not square."""
+    cameras are not known (a photo), the images are not square or open3d is not installed (the GPU
+    machine: the value only annotates the trace, so the fit itself runs without it)."""
+    import importlib.util
+
     import trimesh
 
     from ipm.metrics.silhouette import raycast_masks, view_ious
 
-    if views.camera is not None or views.width != views.height or views.masks is None:
+    if (views.camera is not None or views.width != views.height or views.masks is None
+            or importlib.util.find_spec("open3d") is None):
         return float("nan")
     mesh, res = problem.world_mesh(z, lod), min(res, views.width)
     rec = raycast_masks(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), list(views.c2w), res,

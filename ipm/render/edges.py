@@ -220,9 +220,9 @@ class EdgeRenderer:
         self._faces: dict = {}
 
     def _budget(self, key, vertices, faces: np.ndarray) -> int:
-        """The span budget for meshes of ``key``: on first sight ``spans``, or a third more than
-        ``vertices`` (a callable giving them) need in any view and direction, so that the search
-        rarely outgrows it."""
+        """The span budget for meshes of ``key``: on first sight ``spans``, or what ``vertices`` (a
+        callable giving them) need in any view and direction with :func:`with_headroom`, so that
+        the search rarely outgrows it."""
         if key not in self._budgets:
             if self.spans:
                 self._budgets[key] = int(self.spans)
@@ -235,7 +235,7 @@ class EdgeRenderer:
                     ok = front[faces].all(1)
                     for axis, size in ((1, self.height), (0, self.width)):
                         need = max(need, int(row_ranges(tri[..., axis], ok, size * self.ss, np)[1].sum()))
-                self._budgets[key] = _round_up(need * 4 // 3 + 256)
+                self._budgets[key] = _round_up(with_headroom(need, grown=False) + 256)
         return self._budgets[key]
 
     def _run(self, key, groups: np.ndarray, vertices, run):
@@ -249,7 +249,7 @@ class EdgeRenderer:
             needed = int(np.max(needed))
             if needed <= budget:
                 return out
-            budget = self._budgets[key] = _round_up(int(needed * 1.25) + 1)
+            budget = self._budgets[key] = _round_up(with_headroom(needed, grown=True) + 1)
 
     def _jitter(self, seed: int) -> jnp.ndarray:
         """Sample-grid jitter (n, H ss + W ss, 2) in [0, 1) for render ``seed``: each view's rows,
@@ -297,6 +297,17 @@ class EdgeRenderer:
         loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(zj[0]), run)
         grad = np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(len(zs), -1)
         return np.asarray(loss, np.float64).reshape(len(zs)), grad
+
+
+def with_headroom(spans: int, grown: bool) -> int:
+    """A span budget for meshes needing ``spans``, on first sight or after outgrowing the last. Each
+    new budget is a new program to compile: about 2 s on a CPU, 8-10 s on an H100, where a loss
+    costs about the same at any budget (4 ms from 64 to 512 px) while on a CPU the work grows with
+    it. So a third (a quarter when grown) more on the CPU, and three times as many on a GPU
+    (where a cup's reconstruction compiled one or two grown budgets a stage)."""
+    if jax.default_backend() != "cpu":
+        return 3 * int(spans)
+    return int(spans * 1.25) if grown else int(spans) * 4 // 3
 
 
 def _round_up(n: int) -> int:
