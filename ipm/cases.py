@@ -55,6 +55,10 @@ SAMPLED = (
     ("building_d6", "buildings", 5007, {}, "dev"),
     ("building_d7", "buildings", 5008, {}, "dev"),
     ("building_d8", "buildings", 5009, {}, "dev"),
+    ("building_d9", "buildings", 5010, {}, "dev"),
+    ("building_d10", "buildings", 5011, {}, "dev"),
+    ("building_d11", "buildings", 5012, {}, "dev"),
+    ("building_d12", "buildings", 5013, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )
