@@ -161,12 +161,11 @@ def test_input_iou_is_nan_without_open3d(tiny_case, monkeypatch):
     from ipm.methods.diff import input_iou
 
     views = load_views(tiny_case / "transforms.json").subset([0])
-    truth = json.loads((tiny_case / "ground_truth.json").read_text())
     gen = get_generator("dishes")
     problem = Problem(gen, *estimate_anchor(views))
     z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.0)
     start = input_iou(problem, views, z, 0, res=64)
-    assert 0.0 < start < 1.0 and truth["generator"] == "dishes"
+    assert 0.0 < start < 1.0
     find_spec = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "open3d" else find_spec(name, *a))
     assert np.isnan(input_iou(problem, views, z, 0, res=64))

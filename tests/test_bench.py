@@ -1,0 +1,35 @@
+"""The benchmark scripts' own arithmetic (their timings live in bench/RESULTS.md, not here)."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_devices_agree_compares_images_losses_and_gradients():
+    """Identical numbers agree exactly; a changed pixel, loss and gradient show as such."""
+    compare = _script("devices_agree").compare
+    rng = np.random.default_rng(0)
+    there = {"jax/64/image": rng.random((1, 8, 8)).astype(np.float32), "jax/64/loss": np.float64(0.5),
+             "jax/64/grad": rng.normal(size=5)}
+    (same,) = compare(dict(there), there)
+    assert same == {"renderer": "jax", "width": 64, "pixels": 64, "pixels_differ": 0, "max_coverage_diff": 0.0,
+                    "loss_rel_diff": 0.0, "grad_rel_diff": 0.0}
+    here = {k: np.array(v, copy=True) for k, v in there.items()}
+    here["jax/64/image"][0, 2, 3] += 0.75
+    here["jax/64/image"][0, 4, 4] += 0.25  # an edge pixel's coverage, not a different pixel
+    here["jax/64/loss"] = np.float64(0.55)
+    here["jax/64/grad"] = 1.1 * there["jax/64/grad"]
+    (row,) = compare(here, there)
+    assert row["pixels_differ"] == 1 and np.isclose(row["max_coverage_diff"], 0.75)
+    assert np.isclose(row["loss_rel_diff"], 0.1) and np.isclose(row["grad_rel_diff"], 0.1)
