@@ -90,6 +90,11 @@ class DiffProfile:
     with the camera withheld (seed 0): field-of-view error cup_1 +43 % -> +7.5 %, cup_2 +17 % ->
     -2.4 %; pitch error +4.4 -> +0.5 and -5.8 -> -7.3 degrees. With 30 steps a point the
     profile drowned in the steps' lag and render noise (cup_1 +52 %)."""
+    pitch_bins: int = 1
+    """For an unknown camera (``ipm.photo``): the memetic stage keeps the best individual per
+    topology, yaw bin and one of this many bins of the camera's pitch over ``PITCH_PRIOR``
+    (``ipm.methods.diff.pitch_niche``), so that starts at other elevations are not merged away
+    once the population agrees on the yaw; 1: no pitch bins. PITCH_DOC"""
     focal_step: float = 0.1
     """Grid step of ``focal_sweep`` in log focal length (0.1: about 10 % in focal length)."""
     focal_steps: int = 100
@@ -133,7 +138,7 @@ PROFILES = {
     # 0.906 to 0.914 for about 30 s more per single-view cup
     "default": DiffProfile(population=16, ga_iterations=12, adam_per_iteration=64, memetic_res=96,
                            refine_res=(128, 256), refine_iterations=(100, 60), refine_candidates=3,
-                           decide_steps=30, focal_sweep=3),
+                           decide_steps=30, focal_sweep=3, pitch_bins=4),
     "smoke": DiffProfile(population=4, ga_iterations=2, adam_per_iteration=6, memetic_res=32,
                          refine_res=(48,), refine_iterations=(4,), output_lod=0, refine_lod=0, spp=2,
                          polish_sweeps=1, polish_steps=1, focal_sweep=1, focal_steps=1),

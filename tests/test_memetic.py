@@ -31,6 +31,9 @@ def test_merge_keeps_best_per_bin():
     # an object that looks the same turned has one bin per topology: its turned twins merge
     free = merge_bins(pop, n_shape=1, bins=16, yaw_free=lambda z: True)
     assert [i.best_loss for i in free] == [0.5, 1.0]
+    # a niche (an unknown camera's pitch bin) keeps individuals of one topology and yaw bin apart
+    niches = merge_bins(pop, n_shape=1, bins=16, yaw_free=lambda z: True, niche=lambda z: int(z[1] > 0.15))
+    assert [i.best_loss for i in niches] == [0.5, 1.0, 3.0]
 
 
 def test_rejected_steps_halve_the_rate_and_keep_the_best():

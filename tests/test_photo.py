@@ -231,9 +231,31 @@ def test_the_focal_sweep_finds_the_lowest_loss_over_the_field_of_view():
     assert sweep_focal(known, z, profile, objective) is z
 
 
-def test_auto_renders_an_unknown_camera_with_mitsuba(tiny_case):
-    """``renderer: auto`` keeps the camera-withheld path on Mitsuba (its settings were tuned with
-    it; the JAX renderer is not validated there yet) and a known camera on the JAX renderer."""
+def test_pitch_niches_bin_an_unknown_cameras_pitch():
+    """``pitch_bins`` equal bins over the pitch prior (ends open) for an unknown camera; one niche
+    for a known camera or one bin."""
+    from ipm.generators import get_generator
+    from ipm.methods.diff import pitch_niche
+    from ipm.photo import PITCH_PRIOR
+    from ipm.problem import POSE_NAMES, Problem
+
+    gen = get_generator("dishes")
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(32.0, 60.0, 64, 64))
+    problem = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=cam)
+    z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.3)
+    j, (lo, hi) = problem.n_shape + len(POSE_NAMES), PITCH_PRIOR
+    niche = pitch_niche(problem, 4)
+    for pitch, expected in ((lo - 0.2, 0), (lo + 0.1 * (hi - lo), 0), (lo + 0.3 * (hi - lo), 1),
+                            (lo + 0.6 * (hi - lo), 2), (lo + 0.9 * (hi - lo), 3), (hi + 0.2, 3)):
+        z[j] = pitch
+        assert niche(z) == expected
+    assert pitch_niche(problem, 1)(z) == 0
+    assert pitch_niche(Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0), 4)(z) == 0
+
+
+def test_auto_renders_silhouettes_with_jax_known_camera_or_not(tiny_case):
+    """``renderer: auto`` draws silhouettes with the JAX renderer, the camera known or withheld
+    (validated on the dev cups with the camera withheld, session 15); Mitsuba on request."""
     from ipm.generators import get_generator
     from ipm.methods.diff import Objective
     from ipm.problem import Problem
@@ -245,7 +267,7 @@ def test_auto_renders_an_unknown_camera_with_mitsuba(tiny_case):
     photo = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"], fov_deg=40.0)
     known = load_views(tiny_case / "transforms.json").first(1)
     gen, prof = get_generator("dishes"), get_profile("smoke", renderer="auto")
-    assert isinstance(Objective(Problem.for_views(gen, photo), photo, 32, 0, prof).renderer, SilhouetteRenderer)
+    assert isinstance(Objective(Problem.for_views(gen, photo), photo, 32, 0, prof).renderer, EdgeRenderer)
     assert isinstance(Objective(Problem.for_views(gen, known), known, 32, 0, prof).renderer, EdgeRenderer)
-    jax_photo = Objective(Problem.for_views(gen, photo), photo, 32, 0, get_profile("smoke", renderer="jax"))
-    assert isinstance(jax_photo.renderer, EdgeRenderer)
+    mitsuba_photo = Objective(Problem.for_views(gen, photo), photo, 32, 0, get_profile("smoke", renderer="mitsuba"))
+    assert isinstance(mitsuba_photo.renderer, SilhouetteRenderer)

@@ -30,7 +30,7 @@ from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
 from ipm.methods import check_generator, method
 from ipm.optim.memetic import Individual, adam_steps, memetic
-from ipm.photo import fov_of
+from ipm.photo import PITCH_PRIOR, fov_of
 from ipm.problem import POSE_NAMES, Problem
 from ipm.profiles import DiffProfile, get_profile
 from ipm.render.edges import EdgeRenderer
@@ -48,16 +48,13 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
     return (views.semantics == value).astype(np.float32), generator.semantic_labels[name]
 
 
-def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
-                  known_camera: bool = True):
+def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int):
     """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
-    the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility or the
-    camera is unknown (``ipm.photo``: that path's settings were tuned with Mitsuba, and the JAX
-    renderer is not yet validated there on the dev split)."""
+    the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility."""
     if name == "jax" and class_term:
         raise UserError("the jax renderer draws silhouettes only: with window masks use renderer "
                         "mitsuba or auto, or window_weight 0")
-    if name == "jax" or (name == "auto" and not class_term and known_camera):
+    if name == "jax" or (name == "auto" and not class_term):
         return EdgeRenderer(c2w, fov_x, width, height, spp)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
 
@@ -71,7 +68,7 @@ class Objective:
         h = self.targets.shape[1]
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.renderer = make_renderer(profile.renderer, masks is not None, views.c2w, views.fov_x, width, h,
-                                      profile.spp, known_camera=problem.camera is None)
+                                      profile.spp)
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
@@ -315,6 +312,16 @@ def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective
     return min(tried, key=lambda t: t[1])[0]
 
 
+def pitch_niche(problem: Problem, bins: int):
+    """``z`` -> its bin of an unknown camera's pitch, ``bins`` equal bins over ``PITCH_PRIOR``
+    (the ends open): the memetic stage's niches (``DiffProfile.pitch_bins``). Always 0 for a known
+    camera or one bin."""
+    if problem.camera is None or bins <= 1:
+        return lambda z: 0
+    i, (lo, hi) = problem.n_shape + len(POSE_NAMES), PITCH_PRIOR  # the camera genes: pitch, roll, focal
+    return lambda z: int(np.clip((z[i] - lo) / (hi - lo) * bins, 0, bins - 1))
+
+
 def finalists(problem: Problem, final: list[Individual], k: int) -> list[Individual]:
     """Up to ``k`` of the memetic stage's last generation (best first) that differ from every one
     taken before in their topology or by more than a quarter turn in yaw: the basins worth a
@@ -451,7 +458,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     start = initial_population(problem, profile, rng, objective.match_area)
     final = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
-                    prepare=objective.match_area, yaw_free=problem.yaw_free)
+                    prepare=objective.match_area, yaw_free=problem.yaw_free,
+                    niche=pitch_niche(problem, profile.pitch_bins))
     checkpoint(final[0].best_z)
     state["stage"] = "polish"
     zs = []

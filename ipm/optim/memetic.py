@@ -6,9 +6,9 @@ Per generation (DESIGN.md, the authors' settings are ``ipm.profiles.PROFILES["pa
    individual last improved by 1 %); a step whose loss exceeds ``reject_ratio`` times the
    individual's best is undone and its rate halved (relative to the best, not the last loss,
    so accepted small rises cannot ratchet the loss upwards); each individual keeps its best point;
-2. individuals in the same initialisation bin (topology key and yaw bin; one bin per key for an
-   object that looks the same turned, whose yaw bins would hold turned twins of one basin) are
-   merged (best kept);
+2. individuals in the same initialisation bin (topology key, yaw bin and the caller's niche, e.g.
+   an unknown camera's pitch bin; one yaw bin per key for an object that looks the same turned,
+   whose yaw bins would hold turned twins of one basin) are merged (best kept);
 3. the worst ``remove_share`` are removed; the population is refilled with children of
    fitness-proportionate parents: a one-point crossover of the shape genes (pose from the
    first parent), then each gene mutated with probability ``mutate_share / 10``, each discrete
@@ -93,13 +93,13 @@ def yaw_bin(z: np.ndarray, n_shape: int, bins: int) -> int:
     return int(np.floor(np.mod(z[n_shape], 2 * np.pi) / (2 * np.pi) * bins)) % bins
 
 
-def merge_bins(pop: list[Individual], n_shape: int, bins: int,
-               yaw_free: Callable = lambda z: False) -> list[Individual]:
-    """Keep the best individual of each (topology key, yaw bin); an object that looks the same
-    turned (``yaw_free(z)``) has one bin: its turned twins are one individual, not many."""
+def merge_bins(pop: list[Individual], n_shape: int, bins: int, yaw_free: Callable = lambda z: False,
+               niche: Callable = lambda z: 0) -> list[Individual]:
+    """Keep the best individual of each (topology key, yaw bin, ``niche(z)``); an object that looks
+    the same turned (``yaw_free(z)``) has one yaw bin: its turned twins are one individual, not many."""
     best: dict = {}
     for ind in pop:
-        k = (ind.key, 0 if yaw_free(ind.z) else yaw_bin(ind.z, n_shape, bins))
+        k = (ind.key, 0 if yaw_free(ind.z) else yaw_bin(ind.z, n_shape, bins), niche(ind.z))
         if k not in best or ind.best_loss < best[k].best_loss:
             best[k] = ind
     return sorted(best.values(), key=lambda i: i.best_loss)
@@ -144,13 +144,14 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
             n_shape: int, levels: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
             on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z,
-            yaw_free: Callable = lambda z: False) -> list[Individual]:
+            yaw_free: Callable = lambda z: False, niche: Callable = lambda z: 0) -> list[Individual]:
     """Run the memetic stage from ``initial``; the last generation, best first (one individual
     per topology key and yaw bin): the first one's ``best_z`` is the answer.
 
     ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
     rescales it to the targets' silhouette area, as it does for the initial population);
-    ``yaw_free(z)``: the object ``z`` looks the same turned (:func:`merge_bins`).
+    ``yaw_free(z)``: the object ``z`` looks the same turned; ``niche(z)``: a further bin index that
+    keeps individuals apart (:func:`merge_bins`).
     """
     pop = list(initial)
     for it in range(profile.ga_iterations):
@@ -164,7 +165,7 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
                 adam_steps(ind, n, evaluate, clip, profile.reject_ratio, on_eval)
         for ind in pop:
             ind.key = key_of(ind.z)
-        pop = merge_bins(pop, n_shape, profile.yaw_bins, yaw_free)
+        pop = merge_bins(pop, n_shape, profile.yaw_bins, yaw_free, niche)
         if it == profile.ga_iterations - 1:
             break
         keep = max(1, len(pop) - int(np.ceil(profile.remove_share * profile.population)))
