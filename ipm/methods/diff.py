@@ -48,13 +48,16 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
     return (views.semantics == value).astype(np.float32), generator.semantic_labels[name]
 
 
-def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int):
+def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
+                  known_camera: bool = True):
     """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
-    the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility."""
+    the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility or the
+    camera is unknown (``ipm.photo``: that path's settings were tuned with Mitsuba, and the JAX
+    renderer is not yet validated there on the dev split)."""
     if name == "jax" and class_term:
         raise UserError("the jax renderer draws silhouettes only: with window masks use renderer "
                         "mitsuba or auto, or window_weight 0")
-    if name == "jax" or (name == "auto" and not class_term):
+    if name == "jax" or (name == "auto" and not class_term and known_camera):
         return EdgeRenderer(c2w, fov_x, width, height, spp)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
 
@@ -68,7 +71,7 @@ class Objective:
         h = self.targets.shape[1]
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.renderer = make_renderer(profile.renderer, masks is not None, views.c2w, views.fov_x, width, h,
-                                      profile.spp)
+                                      profile.spp, known_camera=problem.camera is None)
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
