@@ -21,6 +21,8 @@ from ipm.io.views import Views
 from ipm.render.cameras import pixel_ray
 
 POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
+CAMERA_NAMES = ("pitch", "roll", "log_focal")
+"""The genes of an unknown camera (``ipm.photo.UnknownCamera``), in ``z`` after the pose."""
 POSE_LOWER = np.array([-np.inf, 0.0, 0.0, -1.5, 0.0, -1.5, -2.5])
 POSE_UPPER = np.array([np.inf, 0.0, 0.0, 1.5, 0.0, 1.5, 2.5])
 """Pose bounds; the tilts' bounds are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0:
@@ -124,6 +126,10 @@ class Problem:
         camera's genes where it is unknown (``Views.camera``)."""
         return cls(generator, *estimate_anchor(views), max_tilt=max_tilt,
                    free_height=not views.ground_known and len(views) > 1, camera=views.camera)
+
+    def camera_gene(self, name: str) -> int:
+        """Index in ``z`` of the unknown camera's gene ``name`` (:data:`CAMERA_NAMES`)."""
+        return self.n_shape + len(POSE_NAMES) + CAMERA_NAMES.index(name)
 
     def key(self, z: np.ndarray) -> tuple:
         """Topology key (discrete parameter values) of ``z``."""

@@ -287,7 +287,7 @@ def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective
     if not sweeps_focal(problem, profile):
         return z
     camera = problem.camera
-    i = problem.n_shape + len(POSE_NAMES) + 2
+    i = problem.camera_gene("log_focal")
     score = _scorer(objective, (10_009, 10_010, 10_011, 10_012))
 
     def held(start: np.ndarray, value: float) -> tuple[np.ndarray, float]:
@@ -321,7 +321,7 @@ def pitch_niche(problem: Problem, bins: int):
     camera or one bin."""
     if problem.camera is None or bins <= 1:
         return lambda z: 0
-    i, (lo, hi) = problem.n_shape + len(POSE_NAMES), PITCH_PRIOR  # the camera genes: pitch, roll, focal
+    i, (lo, hi) = problem.camera_gene("pitch"), PITCH_PRIOR
     return lambda z: int(np.clip((z[i] - lo) / (hi - lo) * bins, 0, bins - 1))
 
 
