@@ -224,3 +224,18 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert list(wide.columns)[:5] == ["cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet"]
     assert wide.loc["ours (diff, 1 view)", "tree_1"] != wide.loc["ours (diff, 1 view)", "tree_1"]  # NaN: "-"
     assert (tmp_path / "results/synth/cup_1/ring16/transforms.json").is_file()
+
+
+def test_the_benchmark_config_runs_every_case():
+    """``benchmark.yaml`` promises every case of both splits: each case, and each of its rows that
+    names cases, covers every case of its generator's class that the row's method can run."""
+    import yaml
+
+    from ipm.synth import list_cases, load_case
+
+    cfg = yaml.safe_load((ROOT / "pipelines/config/benchmark.yaml").read_text())
+    assert sorted(cfg["cases"]) == sorted(list_cases())
+    for row in (m for m in cfg["methods"] if "cases" in m):
+        generators = {load_case(c)["generator"] for c in row["cases"]}
+        wanted = {c for c in list_cases() if load_case(c)["generator"] in generators}
+        assert set(row["cases"]) == wanted, (row["name"], sorted(wanted - set(row["cases"])))
