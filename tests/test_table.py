@@ -64,3 +64,31 @@ def test_aggregates_are_means_over_the_cases_of_a_class_split_and_family(tables)
     assert wide.loc["ours", "cups/test/all"] == pytest.approx(0.87, abs=1e-3)
     assert md.index("cups, test split") < md.index("cups, dev split")
     assert "0.850 ± 0.071 (worst 0.800)" in md
+
+
+def test_a_withheld_cameras_errors_reach_the_table(tmp_path):
+    """The photo row's params.json records its camera's errors (``ipm.photo.camera_errors``); the
+    evaluation turns them into absolute pitch and field-of-view errors, which the table averages
+    over seeds; other rows leave them empty."""
+    from ipm.metrics.recovery import camera_recovery
+    from ipm.photo import c2w, camera_errors
+
+    given = c2w(np.radians(22.0))
+    errors = [camera_errors({"pitch_deg": pitch, "roll_deg": 0.0, "fov_x_deg": fov}, given, np.radians(40.0))
+              for pitch, fov in ((18.0, 50.0), (23.0, 38.0))]
+    cams = [camera_recovery({"camera_error": e}) for e in errors]
+    assert cams[0] == pytest.approx({"camera_pitch_err_deg": 4.0, "camera_fov_err_pct": 25.0}, abs=1e-6)
+    assert cams[1] == pytest.approx({"camera_pitch_err_deg": 1.0, "camera_fov_err_pct": 5.0}, abs=1e-6)
+    assert camera_recovery({"params": {}}) == {} and camera_recovery(None) == {}
+    files = []
+    for seed, cam in enumerate(cams):
+        files.append(_run(tmp_path, "photo_1v", "photo", "method", "cup_1", seed, 0.5))
+        metrics = json.loads(open(files[-1]).read())
+        open(files[-1], "w").write(json.dumps({**metrics, **cam}))
+    files.append(_run(tmp_path, "ours_1v", "ours", "method", "cup_1", 0, 0.9))
+    out = {k: str(tmp_path / f"{k}.csv") for k in ("long", "wide", "summary")}
+    build_table(files, out["long"], out["wide"], out["summary"], str(tmp_path / "table1.md"))
+    summary = pd.read_csv(out["summary"]).set_index(["label", "case"])
+    assert summary.loc[("photo", "cup_1"), "camera_pitch_err_deg"] == pytest.approx(2.5)
+    assert summary.loc[("photo", "cup_1"), "camera_fov_err_pct"] == pytest.approx(15.0)
+    assert np.isnan(summary.loc[("ours", "cup_1"), "camera_pitch_err_deg"])

@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from ipm.io.atomic import atomic_path
 
 from .align import shape_iou
+from .recovery import camera_recovery, parameter_recovery
 from .silhouette import bounding_sphere, check_reference, finite_part, silhouette_iou, silhouette_masks
 from .volume import volumetric_iou
 
@@ -86,7 +87,8 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
 def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: int = 256, grid: int = 128,
                    preview_path=None, seed: int = 0, truth: dict | None = None, params: dict | None = None) -> dict:
     """``ipm evaluate``: metrics of a mesh file against a reference file, written as JSON; with the
-    case's ground truth and the reconstruction's params.json, also parameter recovery."""
+    case's ground truth and the reconstruction's params.json, also parameter recovery; with a
+    params.json of a withheld camera, the camera's errors."""
     from ipm.errors import UserError
     from ipm.io import load_mesh, write_json
 
@@ -99,10 +101,9 @@ def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: 
     except ValueError as exc:
         raise UserError(str(exc)) from None
     if truth is not None:
-        from .recovery import parameter_recovery
-
         heights = [float(np.ptp(m.vertices[:, 1])) if len(m.vertices) else 0.0 for m in (reference, finite_part(mesh))]
         metrics.update(parameter_recovery(truth, params, *heights))
+    metrics.update(camera_recovery(params))
     write_json(out_path, metrics)
     if preview_path is not None:
         preview_png(reference, mesh, str(preview_path))

@@ -41,6 +41,21 @@ def true_parameters(case: dict):
     return gen, gen.spec.clip(gen.spec.from_dict(src.get("params", {}), base))
 
 
+CAMERA_COLUMNS = ("camera_pitch_err_deg", "camera_fov_err_pct")
+
+
+def camera_recovery(params: dict | None) -> dict:
+    """For a fit whose camera was withheld (the ``photo`` row: ``camera_error`` in its params.json,
+    ``ipm.photo.camera_errors``): the absolute pitch error in degrees and the absolute field-of-view
+    error in percent, the issue's criteria (3 degrees, 10 %); empty otherwise. A pitch error moves
+    the object along the ground and scales it in the world (``ipm.photo.registration``), so this
+    tells a misplaced good shape (``shape_iou`` high, ``iou_mean`` low) from a bad one."""
+    err = (params or {}).get("camera_error")
+    if not err:
+        return {}
+    return {"camera_pitch_err_deg": abs(float(err["pitch_deg"])), "camera_fov_err_pct": 100.0 * abs(float(err["fov_rel"]))}
+
+
 def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float) -> dict:
     """Recovery numbers of ``params`` (a reconstruction's params.json) against ``case`` (its
     ground_truth.json): mean and largest unit-cube error of the continuous parameters, share of
