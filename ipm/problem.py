@@ -9,6 +9,7 @@ World vertices are ``s * R_y(yaw) R_x(tilt_x) R_z(tilt_z) v + t`` with
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from functools import lru_cache
 
 import jax
@@ -130,6 +131,19 @@ class Problem:
     def camera_gene(self, name: str) -> int:
         """Index in ``z`` of the unknown camera's gene ``name`` (:data:`CAMERA_NAMES`)."""
         return self.n_shape + len(POSE_NAMES) + CAMERA_NAMES.index(name)
+
+    @contextmanager
+    def holding(self, genes: dict[int, float]):
+        """Within the block the genes ``genes`` (index -> value) are held at their values: their
+        bounds close on them, so every ``clip`` (starts, Adam steps, mutations) keeps them there.
+        The problem's compiled functions are kept (a copy of the problem would compile anew)."""
+        saved = self.lower.copy(), self.upper.copy()
+        try:
+            for i, v in genes.items():
+                self.lower[i] = self.upper[i] = v
+            yield self
+        finally:
+            self.lower, self.upper = saved
 
     def key(self, z: np.ndarray) -> tuple:
         """Topology key (discrete parameter values) of ``z``."""

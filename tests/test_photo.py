@@ -162,6 +162,63 @@ def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
     assert info["pose"] == placed_pose(info["photo_pose"], place)
 
 
+def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, monkeypatch):
+    """With ``pitch_starts`` the memetic stage runs free, then once per pitch with the camera's pitch
+    held there (starts, steps and the last generation)."""
+    import ipm.methods.diff as diff
+    from ipm.generators import get_generator
+    from ipm.methods import METHODS
+    from ipm.problem import POSE_NAMES
+
+    ip = len(get_generator("dishes").spec) + len(POSE_NAMES)  # the pitch gene
+    seen, real = [], diff.memetic
+
+    def spy(initial, evaluate, clip, *args, **kwargs):
+        out = real(initial, evaluate, clip, *args, **kwargs)
+        seen.append(sorted({round(float(np.degrees(i.z[ip])), 6) for i in initial}
+                           | {round(float(np.degrees(i.best_z[ip])), 6) for i in out}))
+        return out
+
+    monkeypatch.setattr(diff, "memetic", spy)
+    METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes", profile="smoke",
+                         progress=False, pitch_starts=(10.0, 40.0))
+    assert len(seen) == 3 and len(seen[0]) > 1 and seen[1:] == [[10.0], [40.0]]  # the free run first
+
+
+def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
+    """``photo_fov``: view 0's mask with its field of view but not its camera; the field of view
+    stays the given one, and the memetic stage runs once per pitch start (only when it is given)."""
+    import ipm.methods.diff as diff
+    from ipm.methods import METHODS
+
+    runs, real = [], diff.memetic
+    monkeypatch.setattr(diff, "memetic", lambda *a, **k: runs.append(1) or real(*a, **k))
+    info = METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes",
+                                profile="smoke", progress=False, pitch_starts=(10.0, 30.0, 50.0))
+    assert info["method"] == "photo_fov" and info["camera_error"]["fov_rel"] == pytest.approx(0.0, abs=1e-6)
+    assert info["camera"]["fov_given"] and len(runs) == 4  # a free run and one per pitch start
+    METHODS["photo"](tiny_case / "transforms.json", tmp_path / "bare", generator="dishes", profile="smoke",
+                     progress=False, pitch_starts=(10.0, 30.0, 50.0))
+    assert len(runs) == 5  # without the field of view: one memetic stage
+
+
+def test_holding_closes_the_bounds_and_gives_them_back():
+    from ipm.generators import get_generator
+    from ipm.problem import Problem
+
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(32.0, 60.0, 64, 64))
+    problem = Problem(get_generator("dishes"), np.array([0.0, 0.0, -3.0]), 1.0, camera=cam)
+    i = problem.camera_gene("pitch")
+    lower, upper = problem.lower.copy(), problem.upper.copy()
+    gen = problem.generator
+    z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.3)
+    with pytest.raises(RuntimeError), problem.holding({i: 0.25}):
+        assert problem.clip(z)[i] == 0.25 and np.all(np.delete(problem.clip(z) == z, i))
+        raise RuntimeError
+    np.testing.assert_array_equal(problem.lower, lower)
+    np.testing.assert_array_equal(problem.upper, upper)
+
+
 @pytest.mark.parametrize("genes", [(0.2, 0.0, 0.0), (0.7, 0.1, 0.3), (0.45, -0.2, -0.4)])
 def test_the_object_rides_on_the_foot_ray(genes):
     """Whatever the camera's genes, the ground point under the object lies on the mask's foot
@@ -253,9 +310,10 @@ def test_pitch_niches_bin_an_unknown_cameras_pitch():
     assert pitch_niche(Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0), 4)(z) == 0
 
 
-def test_auto_renders_an_unknown_camera_with_mitsuba(tiny_case):
-    """``renderer: auto`` keeps the camera-withheld path on Mitsuba (its settings were tuned with
-    it; the JAX renderer is not validated there yet) and a known camera on the JAX renderer."""
+def test_auto_renders_an_unknown_field_of_view_with_mitsuba(tiny_case):
+    """``renderer: auto`` keeps the camera-withheld path without a field of view on Mitsuba (its
+    focal sweep was tuned with it; the JAX renderer is not validated there yet), and a known
+    camera or field of view on the JAX renderer."""
     from ipm.generators import get_generator
     from ipm.methods.diff import Objective
     from ipm.problem import Problem
@@ -267,7 +325,9 @@ def test_auto_renders_an_unknown_camera_with_mitsuba(tiny_case):
     photo = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"], fov_deg=40.0)
     known = load_views(tiny_case / "transforms.json").first(1)
     gen, prof = get_generator("dishes"), get_profile("smoke", renderer="auto")
-    assert isinstance(Objective(Problem.for_views(gen, photo), photo, 32, 0, prof).renderer, SilhouetteRenderer)
+    assert isinstance(Objective(Problem.for_views(gen, photo), photo, 32, 0, prof).renderer, EdgeRenderer)
+    bare = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"])
+    assert isinstance(Objective(Problem.for_views(gen, bare), bare, 32, 0, prof).renderer, SilhouetteRenderer)
     assert isinstance(Objective(Problem.for_views(gen, known), known, 32, 0, prof).renderer, EdgeRenderer)
-    jax_photo = Objective(Problem.for_views(gen, photo), photo, 32, 0, get_profile("smoke", renderer="jax"))
+    jax_photo = Objective(Problem.for_views(gen, bare), bare, 32, 0, get_profile("smoke", renderer="jax"))
     assert isinstance(jax_photo.renderer, EdgeRenderer)

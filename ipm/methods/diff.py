@@ -49,15 +49,16 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
 
 
 def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
-                  known_camera: bool = True):
+                  mitsuba_tuned: bool = False):
     """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
     the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility or the
-    camera is unknown (``ipm.photo``: that path's settings were tuned with Mitsuba, and the JAX
-    renderer is not yet validated there on the dev split)."""
+    path's settings were tuned with Mitsuba (``mitsuba_tuned``: a camera whose field of view is
+    unknown too, ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated there
+    on the dev split. With the field of view given, the pitch starts were measured with JAX)."""
     if name == "jax" and class_term:
         raise UserError("the jax renderer draws silhouettes only: with window masks use renderer "
                         "mitsuba or auto, or window_weight 0")
-    if name == "jax" or (name == "auto" and not class_term and known_camera):
+    if name == "jax" or (name == "auto" and not class_term and not mitsuba_tuned):
         return EdgeRenderer(c2w, fov_x, width, height, spp)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
 
@@ -71,7 +72,8 @@ class Objective:
         h = self.targets.shape[1]
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.renderer = make_renderer(profile.renderer, masks is not None, views.c2w, views.fov_x, width, h,
-                                      profile.spp, known_camera=problem.camera is None)
+                                      profile.spp,
+                                      mitsuba_tuned=problem.camera is not None and not problem.camera.fov_known)
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
@@ -325,6 +327,15 @@ def pitch_niche(problem: Problem, bins: int):
     return lambda z: int(np.clip((z[i] - lo) / (hi - lo) * bins, 0, bins - 1))
 
 
+def pitch_starts(problem: Problem, profile: DiffProfile) -> list[dict[int, float]]:
+    """The genes each memetic run holds (``DiffProfile.pitch_starts``): a run holding nothing, and
+    for an unknown camera whose field of view is given one more per pitch start."""
+    if problem.camera is None or not problem.camera.fov_known or not profile.pitch_starts:
+        return [{}]
+    i = problem.camera_gene("pitch")
+    return [{}] + [{i: float(np.radians(p))} for p in profile.pitch_starts]
+
+
 def finalists(problem: Problem, final: list[Individual], k: int) -> list[Individual]:
     """Up to ``k`` of the memetic stage's last generation (best first) that differ from every one
     taken before in their topology or by more than a quarter turn in yaw: the basins worth a
@@ -420,8 +431,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     rng = np.random.default_rng(seed)
     reads = profile.read_counts and profile.window_weight > 0  # counts read off the class masks
     turns = profile.decide_turns and bool(problem.generator.marker)  # decide tries quarter turns too
-    total = (profile.ga_iterations * profile.adam_per_iteration + profile.population
-             * profile.ga_iterations + sum(profile.refine_iterations) + len(profile.refine_res)
+    memetic_evals = profile.ga_iterations * (profile.adam_per_iteration + profile.population)
+    total = (len(pitch_starts(problem, profile)) * memetic_evals + sum(profile.refine_iterations)
+             + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
              * profile.decide_steps * (1 + turns)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
@@ -459,10 +471,14 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         return z, settled
 
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
-    start = initial_population(problem, profile, rng, objective.match_area)
-    final = memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng, on_eval,
-                    prepare=objective.match_area, yaw_free=problem.yaw_free,
-                    niche=pitch_niche(problem, profile.pitch_bins))
+    final = []
+    for held in pitch_starts(problem, profile):
+        with problem.holding(held):
+            start = initial_population(problem, profile, rng, objective.match_area)
+            final += memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng,
+                             on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free,
+                             niche=pitch_niche(problem, profile.pitch_bins))
+    final.sort(key=lambda ind: ind.best_loss)
     checkpoint(final[0].best_z)
     state["stage"] = "polish"
     zs = []
@@ -544,21 +560,32 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
 @method("photo", "ours (diff, camera unknown, {views})", layout="hemi", uses_generator=True,
         differentiable_only=True)
 def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
-              seed: int = 0, progress: bool = True, n_input_views: int | None = 1, **overrides) -> dict:
+              seed: int = 0, progress: bool = True, n_input_views: int | None = 1, fov_given: bool = False,
+              **overrides) -> dict:
     """The benchmark's camera-withheld row: the first view's mask alone, without its camera or field
-    of view, goes to the diff path (``ipm.photo``); only afterwards, to score it, the result is
-    placed in the views' world by taking the estimated camera to the given one's position and
-    heading, keeping the ground and the vertical (:func:`ipm.photo.registration`), and the
-    camera's errors are recorded in params.json."""
+    of view (with ``fov_given``, with its field of view), goes to the diff path (``ipm.photo``);
+    only afterwards, to score it, the result is placed in the views' world by taking the estimated
+    camera to the given one's position and heading, keeping the ground and the vertical
+    (:func:`ipm.photo.registration`), and the camera's errors are recorded in params.json."""
     from ipm.photo import DEFAULT_FOV, camera_errors, placed_pose, registration, unknown_camera_views
 
     t0 = time.perf_counter()
     given = load_views(views_path).first(1)
-    photo = unknown_camera_views(replace(given, fov_x=DEFAULT_FOV), fov_known=False)
+    photo = unknown_camera_views(given if fov_given else replace(given, fov_x=DEFAULT_FOV), fov_known=fov_given)
     problem, z, trace, prof = fit(photo, generator, profile, seed, progress, **overrides)
     estimate = problem.decode(z)
     place = registration(estimate["camera"], given.c2w[0])
-    info = {"method": "photo", "profile": profile, "seed": seed, "pose": placed_pose(estimate["pose"], place),
+    info = {"method": "photo_fov" if fov_given else "photo", "profile": profile, "seed": seed,
+            "pose": placed_pose(estimate["pose"], place),
             "photo_pose": estimate["pose"], "camera_error": camera_errors(estimate["camera"], given.c2w[0],
                                                                            given.fov_x)}
     return write_result(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
+
+
+@method("photo_fov", "ours (diff, camera unknown, FOV given, {views})", layout="hemi", uses_generator=True,
+        differentiable_only=True)
+def run_photo_fov(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
+                  seed: int = 0, progress: bool = True, n_input_views: int | None = 1, **overrides) -> dict:
+    """The camera-withheld row with the field of view given, as a photo's Exif gives it: pitch,
+    roll, pose and shape estimated (:func:`run_photo`)."""
+    return run_photo(views_path, out, generator, profile, seed, progress, n_input_views, fov_given=True, **overrides)

@@ -53,7 +53,8 @@ def camera_recovery(params: dict | None) -> dict:
     err = (params or {}).get("camera_error")
     if not err:
         return {}
-    return {"camera_pitch_err_deg": abs(float(err["pitch_deg"])), "camera_fov_err_pct": 100.0 * abs(float(err["fov_rel"]))}
+    return {"camera_pitch_err_deg": abs(float(err["pitch_deg"])),
+            "camera_fov_err_pct": 100.0 * abs(float(err["fov_rel"]))}
 
 
 def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float) -> dict:
