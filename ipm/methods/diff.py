@@ -431,8 +431,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     rng = np.random.default_rng(seed)
     reads = profile.read_counts and profile.window_weight > 0  # counts read off the class masks
     turns = profile.decide_turns and bool(problem.generator.marker)  # decide tries quarter turns too
+    starts, niche = pitch_starts(problem, profile), pitch_niche(problem, profile.pitch_bins)
     memetic_evals = profile.ga_iterations * (profile.adam_per_iteration + profile.population)
-    total = (len(pitch_starts(problem, profile)) * memetic_evals + sum(profile.refine_iterations)
+    total = (len(starts) * memetic_evals + sum(profile.refine_iterations)
              + len(profile.refine_res)
              + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
              * profile.decide_steps * (1 + turns)
@@ -472,12 +473,11 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
 
     objective = Objective(problem, views, state["res"], max(profile.memetic_lod, least), profile)
     final = []
-    for held in pitch_starts(problem, profile):
+    for held in starts:
         with problem.holding(held):
             start = initial_population(problem, profile, rng, objective.match_area)
             final += memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng,
-                             on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free,
-                             niche=pitch_niche(problem, profile.pitch_bins))
+                             on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, niche=niche)
     final.sort(key=lambda ind: ind.best_loss)
     checkpoint(final[0].best_z)
     state["stage"] = "polish"
