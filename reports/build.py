@@ -81,12 +81,12 @@ SIBLINGS = (
     MetricTable("counts_exact", "Counts exact", True,
                 "share of runs with every count the input view shows exact (in-family cases)"),
     MetricTable("camera_pitch_err_deg", "Camera pitch error, camera withheld (degrees)", False,
-                "absolute error of the estimated camera's pitch (rows that fit without the camera: photo); a pitch "
-                "error moves the object along the ground and scales it, which the world IoU counts and the shape "
-                "IoU does not"),
+                "absolute error of the estimated camera's pitch (rows that fit without the camera: photo, "
+                "photo_fov); a pitch error moves the object along the ground and scales it, which the world IoU "
+                "counts and the shape IoU does not"),
     MetricTable("camera_fov_err_pct", "Field-of-view error, camera withheld (%)", False,
                 "absolute relative error of the estimated horizontal field of view, in per cent (rows that fit "
-                "without the camera: photo)"),
+                "without the camera: photo; photo_fov is given it, so 0)"),
 )
 """The tables after Table 1, in page order."""
 
