@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.io.views import PINHOLE_MODELS, Views, _read_mask, check_pinhole, load_views
+from ipm.io.lens import Lens
+from ipm.io.views import Views, _read_mask, load_views, resampled_masks
 from ipm.render.cameras import colmap_to_gl
 
 AXES = {"x": (1, 0, 0), "-x": (-1, 0, 0), "y": (0, 1, 0), "-y": (0, -1, 0), "z": (0, 0, 1), "-z": (0, 0, -1)}
@@ -78,23 +79,15 @@ def upright(views: Views, up: str = "y") -> Views:
                    ground_known=False)
 
 
-def _colmap_camera(cams: dict, used: set[int]) -> tuple[float, int, int]:
-    """The one pinhole camera (horizontal FOV, width, height) the images of a COLMAP model share."""
+def _colmap_camera(cams: dict, used: set[int]) -> Lens:
+    """The one camera the images of a COLMAP model share, as a :class:`~ipm.io.lens.Lens`
+    (any perspective model: its masks are resampled onto the pinhole twin)."""
     if len(used) != 1:
         raise UserError(f"the COLMAP model's images use {len(used)} cameras; all views must share one")
     cam = cams[used.pop()]
-    model, params = cam.model.name, np.asarray(cam.params, np.float64)
-    names = [s.strip() for s in cam.params_info.split(",")]
-    values = dict(zip(names, params))
-    bent = [k for k in names if k not in ("f", "fx", "fy", "cx", "cy") and values[k] != 0.0]
-    if bent:
-        raise UserError(f"the COLMAP camera ({model}) has lens distortion ({', '.join(bent)}); "
-                        "undistort the model first (colmap image_undistorter)")
-    if model not in PINHOLE_MODELS and model not in ("SIMPLE_RADIAL", "RADIAL"):
-        raise UserError(f"COLMAP camera model {model} is not supported (known: {', '.join(PINHOLE_MODELS)})")
-    fx, fy = values.get("fx", values.get("f")), values.get("fy", values.get("f"))
-    check_pinhole("the COLMAP camera's", fx, fy, values["cx"], values["cy"], cam.width, cam.height)
-    return 2.0 * float(np.arctan(0.5 * cam.width / fx)), int(cam.width), int(cam.height)
+    lens = Lens(cam.model.name, tuple(float(v) for v in cam.params), int(cam.width), int(cam.height))
+    lens.camera()  # refuses models that are not perspective cameras
+    return lens
 
 
 def _mask_file(masks: Path, name: str) -> Path:
@@ -126,7 +119,9 @@ def read_colmap(model: str | Path, images: str | Path, masks: str | Path | None,
     posed = sorted((img for img in rec.images.values() if img.has_pose), key=lambda img: img.name)
     if not posed:
         raise UserError(f"the COLMAP model in {model} has no registered image")
-    fov_x, width, height = _colmap_camera(rec.cameras, {img.camera_id for img in posed})
+    lens = _colmap_camera(rec.cameras, {img.camera_id for img in posed})
+    fov_x, width, height = lens.fov_x, lens.width, lens.height
+    lens = None if lens.is_pinhole else lens
     frames, c2w, mask_arr = [], [], []
     for img in posed:
         photo = images / img.name
@@ -137,7 +132,8 @@ def read_colmap(model: str | Path, images: str | Path, masks: str | Path | None,
             frames[-1]["mask_path"] = str(_mask_file(masks, img.name).resolve())
             mask_arr.append(_read_mask(Path(frames[-1]["mask_path"]), width, height))
         c2w.append(colmap_to_gl(img.cam_from_world().matrix()))
-    views = Views(fov_x, width, height, np.stack(c2w), np.stack(mask_arr), frames, model)
+    views = Views(fov_x, width, height, np.stack(c2w), resampled_masks(np.stack(mask_arr), lens, model),
+                  frames, model, lens=lens)
     return upright(views, up)
 
 

@@ -68,10 +68,16 @@ def make_workspace(views: Views, root: Path) -> Workspace:
             raise UserError(f"rgb image {src} is {size[0]}x{size[1]} px but transforms.json says "
                             f"{views.width}x{views.height}")
         name = f"{i:04d}{src.suffix.lower() or '.png'}"
-        try:
-            os.symlink(src.resolve(), root / "images" / name)
-        except OSError:
-            shutil.copyfile(src, root / "images" / name)
+        if views.lens is not None:  # a real lens: the image its pinhole twin sees, as the masks
+            name = f"{i:04d}.png"
+            with Image.open(src) as img:
+                rgb = views.lens.resample(np.asarray(img.convert("RGB"))[None])[0]
+            Image.fromarray(rgb).save(root / "images" / name)
+        else:
+            try:
+                os.symlink(src.resolve(), root / "images" / name)
+            except OSError:
+                shutil.copyfile(src, root / "images" / name)
         names.append(name)
     return Workspace(root, names)
 

@@ -16,6 +16,7 @@ from PIL import Image
 
 from ipm.errors import UserError
 from ipm.io.atomic import atomic_path, write_json
+from ipm.io.lens import NERFSTUDIO_COEFFICIENTS, nerfstudio_lens
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,10 @@ class Views:
     camera: Any = None
     """``ipm.photo.UnknownCamera`` when the (single) view's camera is to be estimated; then ``c2w``
     and ``fov_x`` are the render camera's, a start, not a measurement."""
+    lens: Any = None
+    """The capture's camera (``ipm.io.lens.Lens``) when it is not the centred square-pixel pinhole:
+    masks and label images were resampled onto its pinhole twin (``fov_x``); an image read later
+    from ``frames`` goes through ``lens.resample`` too. None for a pinhole capture."""
 
     def __len__(self) -> int:
         return len(self.c2w)
@@ -110,22 +115,16 @@ def _read_mask(path: Path, width: int, height: int, alpha: bool = False) -> np.n
     return mask
 
 
-DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
-"""Lens distortion coefficients of the nerfstudio / instant-ngp formats (none may be non-zero)."""
-PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
-
-
-def check_pinhole(who: str, fx, fy, cx, cy, width: int, height: int) -> None:
-    """Refuse, with one line naming ``who``, a camera this code cannot render: focal lengths
-    more than 1 % apart (non-square pixels) or a principal point more than a pixel off the image
-    centre (None: not given, nothing to check)."""
-    if fx is not None and fy is not None and abs(float(fy) / float(fx) - 1.0) > 0.01:
-        raise UserError(f"{who} focal lengths fx {float(fx):g} and fy {float(fy):g} differ "
-                        "(non-square pixels are not supported)")
-    for key, value, centre in (("cx", cx, 0.5 * width), ("cy", cy, 0.5 * height)):
-        if value is not None and abs(float(value) - centre) > 1.0:
-            raise UserError(f"{who} {key} {float(value):g} is off the image centre {centre:g} "
-                            "(crop the images to centre the principal point)")
+def resampled_masks(masks: np.ndarray, lens, source) -> np.ndarray:
+    """``masks`` (n, h, w) as the pinhole twin of ``lens`` sees them (unchanged for None);
+    ``UserError`` naming ``source`` if a view's object falls outside the twin's frame."""
+    if lens is None:
+        return masks
+    out = (lens.resample(masks.astype(np.float32)) > 0.5).astype(np.float32)
+    empty = [i for i, m in enumerate(out) if not m.any()]
+    if empty:
+        raise UserError(f"{source}: view {empty[0]}'s object lies outside the undistorted image")
+    return out
 
 
 def _shared(path: Path, data: dict, frames: list, key: str):
@@ -159,39 +158,37 @@ def _image_size(path: Path, frames: list) -> tuple[int, int]:
     raise UserError(f"{path}: no w/h given and frame 0 names no image to read the size from")
 
 
-def _intrinsics(path: Path, data: dict, frames: list, fov_required: bool = True) -> tuple[float | None, int, int]:
-    """Horizontal field of view (radians), width and height from ``camera_angle_x`` or ``fl_x``
-    (nerfstudio, instant-ngp; top level or per frame); ``w``/``h`` from the image when absent;
-    the field of view None when neither is given and it is not ``fov_required``.
-    Cameras this code cannot render (off-centre principal point, distortion, non-square pixels,
-    other models) are refused, not silently approximated."""
+def _intrinsics(path: Path, data: dict, frames: list, fov_required: bool = True):
+    """Horizontal field of view (radians), width, height and lens from ``camera_angle_x`` or
+    ``fl_x`` (nerfstudio, instant-ngp; top level or per frame); ``w``/``h`` from the image when
+    absent; the field of view None when neither is given and it is not ``fov_required``. The lens
+    (``ipm.io.lens.Lens``) is None for the centred square-pixel pinhole camera the renderers draw;
+    otherwise (distortion, ``cx``/``cy`` off centre, ``fl_y`` other than ``fl_x``) the field of
+    view is its pinhole twin's, onto which the masks are resampled."""
     get = lambda key: _shared(path, data, frames, key)  # noqa: E731
     try:
         w, h = get("w"), get("h")
         width, height = (int(w), int(h)) if w is not None and h is not None else _image_size(path, frames)
-        angle, fl_x, fl_y = get("camera_angle_x"), get("fl_x"), get("fl_y")
-        if angle is not None:
-            fov_x = float(angle)
-        elif fl_x is not None:
-            fov_x = 2.0 * float(np.arctan(0.5 * width / float(fl_x)))
-        elif not fov_required:
-            fov_x = None
-        else:
+        angle, fl_x = get("camera_angle_x"), get("fl_x")
+        focal = 0.5 * width / np.tan(0.5 * float(angle)) if angle is not None else fl_x
+        if focal is None and fov_required:
             raise UserError(f"{path}: no camera_angle_x or fl_x: the field of view is unknown")
-        check_pinhole(f"{path}:", fl_x, fl_y, get("cx"), get("cy"), width, height)
-        bent = [key for key in DISTORTION if float(get(key) or 0.0) != 0.0]
-        if bent:
-            raise UserError(f"{path}: lens distortion ({', '.join(bent)}) is not supported; undistort the images first")
+        if angle is not None and not (np.isfinite(float(angle)) and 0.0 < float(angle) < np.pi):
+            raise UserError(f"{path}: camera_angle_x must be in (0, pi), got {angle}")
+        if focal is not None and not (np.isfinite(float(focal)) and float(focal) > 0.0):
+            raise UserError(f"{path}: fl_x must be a positive focal length in pixels, got {focal}")
+        lens = nerfstudio_lens(get("camera_model"), 1.0 if focal is None else float(focal), get("fl_y"), get("cx"),
+                               get("cy"), {k: get(k) for k in NERFSTUDIO_COEFFICIENTS}, width, height)
+        if focal is None and lens is not None:
+            raise UserError(f"{path}: lens distortion, principal point or fl_y given without the focal length "
+                            "(fl_x or camera_angle_x)")
     except (TypeError, ValueError) as exc:
         raise UserError(f"{path}: invalid camera field: {exc}") from None
-    model = get("camera_model")
-    if model is not None and model not in PINHOLE_MODELS:
-        raise UserError(f"{path}: camera_model {model!r} is not supported (known: {', '.join(PINHOLE_MODELS)})")
-    if fov_x is not None and (not np.isfinite(fov_x) or not 0.0 < fov_x < np.pi):
-        raise UserError(f"{path}: camera_angle_x must be in (0, pi), got {fov_x}")
     if width < 8 or height < 8:
         raise UserError(f"{path}: image size {width}x{height} is too small")
-    return fov_x, width, height
+    if focal is None:
+        return None, width, height, None
+    return float(angle) if angle is not None else 2.0 * float(np.arctan(0.5 * width / float(focal))), width, height, lens
 
 
 def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: bool = True) -> Views:
@@ -222,7 +219,7 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
     if not frames:
         raise UserError(f"{path}: no frames")
     posed = any(isinstance(fr, dict) and "transform_matrix" in fr for fr in frames)
-    fov_x, width, height = _intrinsics(path, data, frames, fov_required=posed)
+    fov_x, width, height, lens = _intrinsics(path, data, frames, fov_required=posed)
     if not posed and len(frames) > 1:
         raise UserError(f"{path}: no frame has a transform_matrix; an unknown camera needs exactly one view")
     c2w = [] if posed else [np.eye(4)]
@@ -248,7 +245,7 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
                 mask_list.append(_read_mask(_frame_image(path, fr["file_path"]), width, height, alpha=True))
             else:
                 raise UserError(f"{path}: frame {i} has no mask_path (nor a file_path to take the mask from)")
-        mask_arr = np.stack(mask_list)
+        mask_arr = resampled_masks(np.stack(mask_list), lens, path)
     sem_arr = None
     labelled = [i for i, fr in enumerate(frames) if isinstance(fr, dict) and "semantic_path" in fr]
     if semantics and labelled:
@@ -263,13 +260,15 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
         except (TypeError, ValueError):
             raise UserError(f"{path}: semantic_labels must map label names to integers") from None
         sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height, top) for fr in frames])
+        sem_arr = sem_arr if lens is None else lens.resample(sem_arr, nearest=True)
     if posed:
         return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
-                     data.get("semantic_labels"), sem_arr)
+                     data.get("semantic_labels"), sem_arr, lens=lens)
     from ipm.photo import DEFAULT_FOV, unknown_camera_views  # a photo without its camera (``ipm.photo``)
 
     return unknown_camera_views(Views(DEFAULT_FOV if fov_x is None else fov_x, width, height, np.stack(c2w),
-                                      mask_arr, frames, path.parent, data.get("semantic_labels"), sem_arr),
+                                      mask_arr, frames, path.parent, data.get("semantic_labels"), sem_arr,
+                                      lens=lens),
                                 fov_known=fov_x is not None)
 
 

@@ -565,7 +565,9 @@ def reference_labels(views: Views, tree: bool, source: str = "auto") -> np.ndarr
     for fr, mask in zip(views.frames, views.masks):
         if "file_path" not in fr:
             raise UserError("a frame has neither semantic_path nor file_path: no tree labels")
-        out.append(labels_from_rgb(_read_rgb(views.root / fr["file_path"], views.width, views.height), mask > 0.5))
+        rgb = _read_rgb(views.root / fr["file_path"], views.width, views.height)
+        rgb = rgb if views.lens is None else views.lens.resample(rgb[None])[0]  # as the masks were
+        out.append(labels_from_rgb(rgb, mask > 0.5))
     return np.stack(out)
 
 
