@@ -128,6 +128,13 @@ class Problem:
         return cls(generator, *estimate_anchor(views), max_tilt=max_tilt,
                    free_height=not views.ground_known and len(views) > 1, camera=views.camera)
 
+    @property
+    def fov_estimated(self) -> bool | None:
+        """Whether an unknown camera's field of view is estimated too (False: given, a photo's
+        Exif or ``--fov``); None for a known camera. The diff path's renderer, focal sweep and
+        pitch starts are chosen by it."""
+        return None if self.camera is None else not self.camera.fov_known
+
     def camera_gene(self, name: str) -> int:
         """Index in ``z`` of the unknown camera's gene ``name`` (:data:`CAMERA_NAMES`)."""
         return self.n_shape + len(POSE_NAMES) + CAMERA_NAMES.index(name)

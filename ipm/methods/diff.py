@@ -73,7 +73,7 @@ class Objective:
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.renderer = make_renderer(profile.renderer, masks is not None, views.c2w, views.fov_x, width, h,
                                       profile.spp,
-                                      mitsuba_tuned=problem.camera is not None and not problem.camera.fov_known)
+                                      mitsuba_tuned=problem.fov_estimated is True)
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
@@ -271,8 +271,7 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
 
 def sweeps_focal(problem: Problem, profile: DiffProfile) -> bool:
     """Whether :func:`sweep_focal` runs: a camera of unknown field of view and a sweep in the profile."""
-    camera = problem.camera
-    return camera is not None and not camera.fov_known and profile.focal_sweep > 0 and profile.focal_steps > 0
+    return problem.fov_estimated is True and profile.focal_sweep > 0 and profile.focal_steps > 0
 
 
 def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective,
@@ -330,7 +329,7 @@ def pitch_niche(problem: Problem, bins: int):
 def pitch_starts(problem: Problem, profile: DiffProfile) -> list[dict[int, float]]:
     """The genes each memetic run holds (``DiffProfile.pitch_starts``): a run holding nothing, and
     for an unknown camera whose field of view is given one more per pitch start."""
-    if problem.camera is None or not problem.camera.fov_known or not profile.pitch_starts:
+    if problem.fov_estimated in (None, True) or not profile.pitch_starts:  # known camera, or FOV estimated
         return [{}]
     i = problem.camera_gene("pitch")
     return [{}] + [{i: float(np.radians(p))} for p in profile.pitch_starts]
