@@ -8,6 +8,7 @@ of the same size and horizontal focal length that sees the same rays (what COLMA
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -56,20 +57,14 @@ class Lens:
     def is_pinhole(self) -> bool:
         """Whether the capture's camera is the centred square-pixel pinhole already."""
         cam = self.camera()
-        extra = np.asarray(self.params, np.float64)[list(cam.extra_params_idxs())]
-        return (not np.any(extra != 0.0)
-                and abs(cam.focal_length_y / cam.focal_length_x - 1.0) < 1e-6
-                and abs(cam.principal_point_x - 0.5 * self.width) < CENTRE_TOLERANCE_PX
-                and abs(cam.principal_point_y - 0.5 * self.height) < CENTRE_TOLERANCE_PX)
+        return _centred_square(cam.focal_length_x, cam.focal_length_y, cam.principal_point_x, cam.principal_point_y,
+                               [self.params[i] for i in cam.extra_params_idxs()], self.width, self.height)
 
     def source_pixels(self) -> np.ndarray:
         """(height, width, 2) where each pixel centre of the pinhole twin lies in the capture's
-        image, in array coordinates (column, row; the first pixel's centre at 0, 0)."""
-        cam, f = self.camera(), self.focal
-        cols, rows = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
-        rays = np.stack([(cols - 0.5 * self.width) / f, (rows - 0.5 * self.height) / f, np.ones_like(cols)], -1)
-        px = np.asarray(cam.img_from_cam(rays.reshape(-1, 3), check_cheirality=False), np.float64)
-        return px.reshape(self.height, self.width, 2) - 0.5
+        image, in array coordinates (column, row; the first pixel's centre at 0, 0). Read-only,
+        and kept for the last lens: masks, labels and each photo of a capture share one map."""
+        return _source_pixels(self)
 
     def resample(self, images: np.ndarray, nearest: bool = False) -> np.ndarray:
         """``images`` (n, height, width[, channels]) seen by the capture's camera, as its pinhole
@@ -99,6 +94,25 @@ class Lens:
         return total.astype(images.dtype)
 
 
+@lru_cache(maxsize=1)
+def _source_pixels(lens: Lens) -> np.ndarray:
+    """:meth:`Lens.source_pixels`, once per lens (a 12-megapixel map takes seconds)."""
+    cam, f = lens.camera(), lens.focal
+    cols, rows = np.meshgrid(np.arange(lens.width) + 0.5, np.arange(lens.height) + 0.5)
+    rays = np.stack([(cols - 0.5 * lens.width) / f, (rows - 0.5 * lens.height) / f, np.ones_like(cols)], -1)
+    px = np.asarray(cam.img_from_cam(rays.reshape(-1, 3), check_cheirality=False), np.float64)
+    out = px.reshape(lens.height, lens.width, 2) - 0.5
+    out.setflags(write=False)
+    return out
+
+
+def _centred_square(fx: float, fy: float, cx: float, cy: float, extras, width: int, height: int) -> bool:
+    """Whether a camera is the centred square-pixel pinhole the renderers draw: no distortion
+    term, fy = fx, the principal point within :data:`CENTRE_TOLERANCE_PX` of the centre."""
+    return (not any(float(e) != 0.0 for e in extras) and abs(fy / fx - 1.0) < 1e-6
+            and abs(cx - 0.5 * width) < CENTRE_TOLERANCE_PX and abs(cy - 0.5 * height) < CENTRE_TOLERANCE_PX)
+
+
 def _expand(per_pixel: np.ndarray, like: np.ndarray) -> np.ndarray:
     """(height, width) broadcast against (n, height, width[, channels])."""
     return per_pixel.reshape((1,) + per_pixel.shape + (1,) * (like.ndim - 3))
@@ -124,8 +138,7 @@ def nerfstudio_lens(model: str | None, fx: float, fy: float | None, cx: float | 
     if model not in ("OPENCV", "OPENCV_FISHEYE", "PINHOLE", "SIMPLE_PINHOLE"):
         raise UserError(f"camera_model {model!r} is not supported (known: OPENCV, OPENCV_FISHEYE, PINHOLE, "
                         "SIMPLE_PINHOLE)")
-    if (not any(k.values()) and abs(fy / float(fx) - 1.0) < 1e-6 and abs(cx - 0.5 * width) < CENTRE_TOLERANCE_PX
-            and abs(cy - 0.5 * height) < CENTRE_TOLERANCE_PX):
+    if _centred_square(float(fx), fy, cx, cy, k.values(), width, height):
         return None
     if model == "OPENCV_FISHEYE":
         if k["p1"] or k["p2"]:
