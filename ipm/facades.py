@@ -27,6 +27,9 @@ DENSITY = 2.0
 """Samples per image pixel of a rectified facade."""
 MARKER_PIXELS = 2.0
 """A marker (a door) this many pixels wide or more shows in a view's semantic image."""
+WINDOW_PIXELS = 4.0
+"""A facade shows its windows in a view when their class covers this many of the view's pixels on
+it or more (a 2 x 2 blob; less is a speck, not a window a person could count)."""
 
 
 def runs(on: np.ndarray, min_gap: int) -> list[tuple[int, int]]:
@@ -152,3 +155,30 @@ def read_counts(generator, x: np.ndarray, to_world, seen: list[str], views, clas
     if storeys:
         found["floors"] = int(max(storeys))
     return found
+
+
+def shown_counts(generator, x: np.ndarray, to_world, views, class_masks: np.ndarray) -> list[str]:
+    """The count parameters (``generator.counts``) of the object ``x`` posed by ``to_world`` that
+    the views' class masks show, so that a fit can read them: a facade's count when the view that
+    faces it most squarely sees it (``SEEN_COS``) and either its class covers ``WINDOW_PIXELS`` or
+    more there (rectified onto the facade) or it has none (a blank wall reads as none); the other
+    counts (storeys) when some facade's windows show. The reveals hide a window's glass at an angle
+    (building_d4's front, 65 degrees off, shows none of its seven), and with no window in sight the
+    storeys of a wall of given height cannot be told."""
+    facades, any_shown = [], False
+    for name, (o, d_along, best, cos, length, top) in _facade_frames(generator.facades(x), to_world, views).items():
+        if cos <= SEEN_COS:
+            continue
+        grid, _, _ = rectify(class_masks[best], views.c2w[best], views.fov_x, o, d_along, length, top)
+        up = np.array([0.0, np.linalg.norm(d_along), 0.0])
+        quad = project(np.stack([o - 0.5 * length * d_along, o + 0.5 * length * d_along,
+                                 o + 0.5 * length * d_along + top * up, o - 0.5 * length * d_along + top * up]),
+                       views.c2w[best], views.fov_x, views.width, views.height)
+        area = 0.5 * abs(np.dot(quad[:, 0], np.roll(quad[:, 1], -1)) - np.dot(quad[:, 1], np.roll(quad[:, 0], -1)))
+        pixels = float(np.nansum(grid)) / grid.size * area  # the facade's share in its class, in image pixels
+        if pixels >= WINDOW_PIXELS:
+            facades.append(name)
+            any_shown = True
+        elif x[generator.spec.index[name]] == 0:
+            facades.append(name)
+    return [n for n in generator.counts if n in facades or (n not in generator.facing and any_shown)]

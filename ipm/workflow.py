@@ -90,11 +90,13 @@ def reference_line_step(name: str, reference: str, truth: str, mesh: str, thread
 
 
 def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: str, row: dict, seed: int,
-                  n_views: int, res: int, grid: int, gallery: str | None = None, threads: int = 1, log=None):
+                  n_views: int, res: int, grid: int, gallery: str | None = None, views: str | None = None,
+                  threads: int = 1, log=None):
     """Metrics of the reconstruction in folder ``run`` (with parameter recovery where the truth and
-    the fit share a generator), its gallery sheet, and ``row.json`` beside them (table label, kind,
-    case split and class, seed, wall time, the machine it ran on, note). A run that recorded a
-    failure (``failed`` in its info.json) gets no metrics, only the reason."""
+    the fit share a generator, its counts those the input ``views`` folder shows), its gallery
+    sheet, and ``row.json`` beside them (table label, kind, case split and class, seed, wall time,
+    the machine it ran on, note). A run that recorded a failure (``failed`` in its info.json) gets
+    no metrics, only the reason."""
     with _logged(log, threads, mitsuba=gallery is not None):
         import json
 
@@ -112,7 +114,7 @@ def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: s
             failure_files(info["failed"], metrics, preview)
         else:
             evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview,
-                           truth=case, params=params)
+                           truth=case, params=params, views=views)
         if gallery:
             from ipm.render.gallery import gallery_sheet
 

@@ -79,7 +79,7 @@ SIBLINGS = (
     MetricTable("discrete_match", "Discrete parameters recovered", True,
                 "share of the generator's discrete parameters recovered exactly (in-family cases)"),
     MetricTable("counts_exact", "Counts exact", True,
-                "share of runs with every count the input view shows exact (in-family cases)"),
+                "share of runs with every count the input view's window mask shows exact (in-family cases)"),
     MetricTable("camera_pitch_err_deg", "Camera pitch error, camera withheld (degrees)", False,
                 "absolute error of the estimated camera's pitch (rows that fit without the camera: photo, "
                 "photo_fov); a pitch error moves the object along the ground and scales it, which the world IoU "

@@ -10,7 +10,7 @@ from ipm.cases import ELEVATION_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split,
 from ipm.cases import unit_distance
 from ipm.errors import UserError
 from ipm.generators import GENERATORS, get_generator
-from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
+from ipm.metrics.recovery import facade_match, parameter_recovery, seen_counts, true_parameters
 from ipm.synth import list_cases, load_case
 
 
@@ -121,6 +121,24 @@ def test_counts_are_scored_on_the_facades_the_input_view_shows():
     seen = _params(case)
     seen["params"]["windows_left"] -= 1
     assert parameter_recovery(case, seen, 1.0, 1.0)["counts_exact"] == 0.0
+
+
+def test_counts_are_compared_side_by_side_in_the_world():
+    """A fit turned a quarter with its sides traded is the same house: each side's count is scored
+    against the fit's side that faces the same way."""
+    case = load_case("building_d1")  # the input view sees the front and the left side
+    gen, x = true_parameters(case)
+    assert facade_match(gen, 0.3, 0.3) == {n: n for n in gen.facing}
+    turned = {"windows_front": "windows_left", "windows_right": "windows_front",
+              "windows_back": "windows_right", "windows_left": "windows_back"}
+    assert facade_match(gen, 0.0, math.pi / 2) == turned
+    assert facade_match(gen, 1.0, 1.0 + math.pi / 2 + 0.3) == turned  # the nearest direction
+    quarter = _params(case, yaw=math.radians(case["pose"]["yaw_deg"]) + math.pi / 2)
+    quarter["params"].update(width=x[gen.spec.index["depth"]], depth=x[gen.spec.index["width"]])
+    assert parameter_recovery(case, quarter, 1.0, 1.0)["counts_exact"] == 0.0  # left 3 against the fit's back 5
+    for name, fit_name in turned.items():
+        quarter["params"][fit_name] = int(x[gen.spec.index[name]])
+    assert parameter_recovery(case, quarter, 1.0, 1.0)["counts_exact"] == 1.0
 
 
 def test_parameter_recovery_only_where_it_means_something():

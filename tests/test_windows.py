@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -19,7 +20,7 @@ from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
 from ipm.methods.diff import Objective, class_masks, decide, neighbours, polish, read_counts_into, turned
-from ipm.metrics.recovery import true_parameters
+from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
 from ipm.render.cameras import orbit_camera
@@ -399,6 +400,30 @@ def test_counts_are_read_back_at_the_truths_pose(building_views):
     aside = problem.initial_z(gen.spec.to_unit(hidden), np.radians(pose["yaw_deg"] + 30.0))
     aside[problem.n_shape + 6] = 0.0
     assert marker_turn(gen, hidden, problem.to_world(aside), views, np.zeros_like(door)) == pytest.approx(np.pi)
+
+
+@pytest.mark.parametrize("case, shown", [
+    ("building_d4", ["floors", "windows_left"]),  # the front, 65 degrees off: its reveals hide all seven windows' glass
+    ("building_d8", ["windows_right"]),  # no glass in sight: the storeys cannot be told; a blank wall reads as none
+])
+def test_counts_scored_are_those_the_input_window_mask_shows(tmp_path_factory, mitsuba_cpu, case, shown):
+    """Parameter recovery scores the counts the input view's window mask shows on the truth, not
+    every side that faces the camera; with no window in the mask, only blank walls are read."""
+    folder = synthesized(tmp_path_factory, case, n_views=1, res=128, spp=4)
+    truth = json.loads((folder / "ground_truth.json").read_text())
+    gen, x = true_parameters(truth)
+    views = load_views(folder / "transforms.json")
+    assert seen_counts(gen, truth, views) == shown
+    assert set(shown) < set(seen_counts(gen, truth))  # the sides that face the camera
+    labels = BUILDING_LABELS
+    blind = replace(views, semantics=np.where(views.semantics == labels["window"], labels["wall"], views.semantics))
+    assert seen_counts(gen, truth, blind) == [n for n in shown if n in gen.facing and x[gen.spec.index[n]] == 0]
+    fit = {"generator": gen.name, "params": gen.spec.as_dict(x),
+           "pose": {"yaw": np.radians(truth["pose"]["yaw_deg"]), "translation": truth["pose"]["translation"]}}
+    for name in gen.counts:
+        off = json.loads(json.dumps(fit))
+        off["params"][name] += 1 if off["params"][name] < gen.spec.upper[gen.spec.index[name]] else -1
+        assert parameter_recovery(truth, off, 1.0, 1.0, views=views)["counts_exact"] == float(name not in shown)
 
 
 def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_views):

@@ -1,5 +1,7 @@
 """All benchmark numbers for one reconstruction against its reference, plus a preview strip."""
 
+from pathlib import Path
+
 import numpy as np
 import trimesh
 from PIL import Image
@@ -85,9 +87,11 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
 
 
 def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: int = 256, grid: int = 128,
-                   preview_path=None, seed: int = 0, truth: dict | None = None, params: dict | None = None) -> dict:
+                   preview_path=None, seed: int = 0, truth: dict | None = None, params: dict | None = None,
+                   views=None) -> dict:
     """``ipm evaluate``: metrics of a mesh file against a reference file, written as JSON; with the
-    case's ground truth and the reconstruction's params.json, also parameter recovery; with a
+    case's ground truth and the reconstruction's params.json, also parameter recovery (the counts
+    scored are those the input ``views`` folder's semantic images show, if given); with a
     params.json of a withheld camera, the camera's errors."""
     from ipm.errors import UserError
     from ipm.io import load_mesh, write_json
@@ -102,7 +106,11 @@ def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: 
         raise UserError(str(exc)) from None
     if truth is not None:
         heights = [float(np.ptp(m.vertices[:, 1])) if len(m.vertices) else 0.0 for m in (reference, finite_part(mesh))]
-        metrics.update(parameter_recovery(truth, params, *heights))
+        if views is not None and params is not None:
+            from ipm.io import load_views
+
+            views = load_views(Path(views) / "transforms.json")
+        metrics.update(parameter_recovery(truth, params, *heights, views=views))
     metrics.update(camera_recovery(params))
     write_json(out_path, metrics)
     if preview_path is not None:

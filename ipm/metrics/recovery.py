@@ -15,18 +15,41 @@ import math
 
 import numpy as np
 
+from .align import yaw_matrix
+
 RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "counts_exact", "yaw_err_deg", "trans_err_rel",
                     "size_err_pct")
 
 
-def seen_counts(gen, case: dict) -> list[str]:
-    """The generator's count parameters that the input view of ``case`` shows
-    (``Generator.seen_counts`` at the true yaw, from the case's camera direction)."""
+def seen_counts(gen, case: dict, views=None) -> list[str]:
+    """The generator's count parameters that the input view of ``case`` shows: with ``views`` (the
+    case's input views, with semantic images naming ``gen.mask_class``), the counts their class
+    masks show on the truth (``ipm.facades.shown_counts``); otherwise those whose side faces the
+    case's camera (``Generator.seen_counts`` at the true yaw)."""
     from ipm.render.cameras import orbit_direction
 
+    pose = case.get("pose", {})
+    yaw = math.radians(pose.get("yaw_deg", 0.0))
+    if views is not None and views.semantics is not None and gen.mask_class in (views.semantic_labels or {}):
+        from ipm.facades import shown_counts
+
+        x = true_parameters(case)[1]
+        rot = yaw_matrix(yaw)
+        t, scale = np.asarray(pose.get("translation", [0.0, 0.0, 0.0]), float), float(pose.get("scale", 1.0))
+        masks = (views.semantics == int(views.semantic_labels[gen.mask_class])).astype(np.float32)
+        return shown_counts(gen, x, lambda v: scale * np.asarray(v, float) @ rot.T + t, views, masks)
     cam = case.get("camera", {})
     to_camera = orbit_direction(cam.get("azimuth_deg", 0.0), cam.get("elevation_deg", 22.0))
-    return gen.seen_counts(math.radians(case.get("pose", {}).get("yaw_deg", 0.0)), to_camera)
+    return gen.seen_counts(yaw, to_camera)
+
+
+def facade_match(gen, yaw_true: float, yaw_fit: float) -> dict[str, str]:
+    """For each side count of the truth (``Generator.facing``) turned by ``yaw_true``, the fit's
+    side count that faces the same way in the world at ``yaw_fit`` (radians): a fit turned a
+    quarter with its sides traded is the same house, its right side the truth's front."""
+    fit = {m: yaw_matrix(yaw_fit) @ np.asarray(normal, float) for m, normal in gen.facing.items()}
+    return {n: max(fit, key=lambda m: float(fit[m] @ (yaw_matrix(yaw_true) @ np.asarray(normal, float))))
+            for n, normal in gen.facing.items()}
 
 
 def true_parameters(case: dict):
@@ -57,11 +80,13 @@ def camera_recovery(params: dict | None) -> dict:
             "camera_fov_err_pct": 100.0 * abs(float(err["fov_rel"]))}
 
 
-def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float) -> dict:
+def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float,
+                       views=None) -> dict:
     """Recovery numbers of ``params`` (a reconstruction's params.json) against ``case`` (its
     ground_truth.json): mean and largest unit-cube error of the continuous parameters, share of
-    discrete parameters recovered exactly, whether every count the input view shows came back
-    exactly (:func:`seen_counts`; NaN for generators without counts), yaw error in degrees (NaN
+    discrete parameters recovered exactly, whether every count the input ``views`` show came back
+    exactly (:func:`seen_counts`; a side's count against the fit's side facing the same way,
+    :func:`facade_match`; NaN for generators without counts), yaw error in degrees (NaN
     for objects that look the same turned, ``Generator.yaw_symmetric``), translation error over
     the reference's height, size error in percent (the world heights of reconstruction and
     reference). Empty for out-of-family cases, baselines and other generators."""
@@ -81,14 +106,15 @@ def parameter_recovery(case: dict, params: dict | None, reference_height: float,
     if not gen.yaw_symmetric(x_true):
         d = math.radians(pose.get("yaw_deg", 0.0)) - float(rec["yaw"])
         yaw_err = abs(math.degrees(math.atan2(math.sin(d), math.cos(d))))
+    match = facade_match(gen, math.radians(pose.get("yaw_deg", 0.0)), float(rec["yaw"]))
     t_true = np.asarray(pose.get("translation", [0.0, 0.0, 0.0]), float)
     t_rec = np.asarray(rec["translation"], float)
     return {
         "param_err": float(err.mean()) if err.size else float("nan"),
         "param_err_max": float(err.max()) if err.size else float("nan"),
         "discrete_match": float(np.mean(x_true[disc] == x_rec[disc])) if disc.any() else float("nan"),
-        "counts_exact": float(all(x_true[spec.index[n]] == x_rec[spec.index[n]] for n in seen_counts(gen, case)))
-        if gen.counts else float("nan"),
+        "counts_exact": float(all(x_true[spec.index[n]] == x_rec[spec.index[match.get(n, n)]]
+                                  for n in seen_counts(gen, case, views))) if gen.counts else float("nan"),
         "yaw_err_deg": yaw_err,
         "trans_err_rel": float(np.linalg.norm(t_rec - t_true) / max(reference_height, 1e-9)),
         "size_err_pct": float(100.0 * (mesh_height / max(reference_height, 1e-9) - 1.0)),

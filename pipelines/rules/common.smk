@@ -126,6 +126,14 @@ def method_views_dir(wildcards):
     return views_dir(m["name"], m["views"], wildcards.case)
 
 
+def recovery_views(wildcards):
+    """The input views whose semantic images decide which counts parameter recovery scores (the
+    row's own; none for baselines and reference lines, which have no counts or no input)."""
+    if wildcards.row.startswith("line_") or not METHODS[method_of(wildcards)["name"]].uses_generator:
+        return []
+    return method_views_dir(wildcards)
+
+
 def method_inputs(wildcards):
     """Inputs of a reconstruction: its views, and the method's preparation file for the case's
     generator and the run's seed if it has a preparation stage (the GA's gene statistics, made once

@@ -3,6 +3,7 @@ rule evaluate:
         reference=rules.reference.output.reference,
         truth=rules.reference.output.truth,
         run="results/reconstruct/{row}/{case}/s{seed}",
+        views=recovery_views,
     output:
         metrics="results/evaluate/{row}/{case}/s{seed}/metrics.json",
         row="results/evaluate/{row}/{case}/s{seed}/row.json",

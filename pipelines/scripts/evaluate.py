@@ -3,4 +3,5 @@ from ipm.workflow import evaluate_step
 evaluate_step(reference=snakemake.input.reference, truth=snakemake.input.truth, run=snakemake.input.run,
               metrics=snakemake.output.metrics, preview=snakemake.output.preview, gallery=snakemake.output.gallery,
               row=snakemake.params.row, seed=int(snakemake.wildcards.seed), n_views=snakemake.params.n_views,
-              res=snakemake.params.res, grid=snakemake.params.grid, threads=snakemake.threads, log=snakemake.log[0])
+              res=snakemake.params.res, grid=snakemake.params.grid, views=snakemake.input.get("views") or None,
+              threads=snakemake.threads, log=snakemake.log[0])
