@@ -24,6 +24,7 @@ from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameter
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
 from ipm.render.cameras import orbit_camera
+from ipm.render.edges import pyramid_loss
 from ipm.render.silhouette import SilhouetteRenderer, _pyramid_loss
 from tests.conftest import synthesized
 from tests.test_generate import VALIDATOR, _glb_json
@@ -130,9 +131,10 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
 
 
 def test_renderer_choice_with_window_masks(building_views):
-    """The JAX renderer draws silhouettes only: asked for with window masks it is refused, ``auto``
-    gives the window term to Mitsuba, and without masks ``auto`` takes the JAX renderer (buildings'
-    shared-position scene included: the same loss as Mitsuba's within render noise)."""
+    """With window masks ``auto`` gives the window term to Mitsuba (the default settings were tuned
+    with it) and ``jax`` draws it (a z-buffer and edge sampling, ``ipm.render.edges``) with the
+    same loss within render noise; without masks ``auto`` takes the JAX renderer (buildings'
+    shared-position scene included)."""
     from ipm.render.edges import EdgeRenderer
     from ipm.render.silhouette import SilhouetteRenderer
 
@@ -140,34 +142,40 @@ def test_renderer_choice_with_window_masks(building_views):
     views = load_views(building_views / "transforms.json")
     problem = Problem(gen, *estimate_anchor(views))
     z = problem.initial_z(gen.spec.to_unit(gen.presets["villa"]), 0.5)
-    with pytest.raises(UserError, match="silhouettes only"):
-        Objective(problem, views, 48, 2, get_profile("smoke", renderer="jax"))
     assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", renderer="auto")).renderer,
                       SilhouetteRenderer)
-    plain = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, window_weight=0.0, spp=16))
-             for r in ("auto", "mitsuba")]
-    assert isinstance(plain[0].renderer, EdgeRenderer)
-    losses = [np.mean([o(z, seed=s)[0] for s in range(4)]) for o in plain]
-    assert losses[0] == pytest.approx(losses[1], rel=0.1)
+    for window_weight in (1.0, 0.0):
+        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, window_weight=window_weight, spp=16))
+                for r in ("jax", "mitsuba")]
+        assert isinstance(pair[0].renderer, EdgeRenderer)
+        losses = [np.mean([o(z, seed=s)[0] for s in range(4)]) for o in pair]
+        assert losses[0] == pytest.approx(losses[1], rel=0.1)
+    assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0)).renderer,
+                      EdgeRenderer)
 
 
-def test_one_scene_serves_every_topology(building_views):
+@pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
+def test_one_scene_serves_every_topology(building_views, renderer):
     """Buildings render every face of the level with the absent solids collapsed to a point: the
     loss and gradient equal those of the topology's own faces, and one Mitsuba scene (one set of
     compiled kernels) serves the house, the villa and the tower."""
+    from ipm.render.edges import EdgeRenderer
+
     gen = get_generator("buildings")
     views = load_views(building_views / "transforms.json")
     problem = Problem(gen, *estimate_anchor(views))
-    obj = Objective(problem, views, 48, 2, get_profile("smoke", spp=8))
+    obj = Objective(problem, views, 48, 2, get_profile("smoke", spp=8, renderer=renderer))
     zs = [problem.initial_z(gen.spec.to_unit(gen.presets[name]), 0.5) for name in ("house", "villa", "tower")]
     assert len({problem.key(z) for z in zs}) == 3
     for z in zs:
         shared_loss, shared_grad = obj(z, seed=3)
-    assert len(obj.renderer._scenes) == 1
+    if renderer == "mitsuba":
+        assert len(obj.renderer._scenes) == 1
     key = problem.key(zs[-1])
     topo = gen.topology(key, 2)
     highlight = np.asarray(gen.part_semantic)[topo.labels] == BUILDING_LABELS["window"]
-    own = SilhouetteRenderer(views.c2w, views.fov_x, 48, obj.targets.shape[1], 8)
+    own = (SilhouetteRenderer if renderer == "mitsuba" else EdgeRenderer)(views.c2w, views.fov_x, 48,
+                                                                         obj.targets.shape[1], 8)
     loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1], [topo.faces[~highlight], topo.faces[highlight]],
                                    len(topo.uv), obj.targets, seed=3, highlight_targets=obj.class_targets,
                                    highlight_weight=obj.class_weight, highlight_levels=obj.class_levels,
@@ -200,6 +208,7 @@ def test_pyramid_loss_averages_the_levels(mitsuba_cpu, kind):
         expected.append(term(*pooled))
     got = _pyramid_loss(mi.Float(image.astype(np.float32).ravel()), target, 3, kind)
     assert _scalar(got) == pytest.approx(np.mean(expected), rel=1e-5)
+    assert float(pyramid_loss(image, target, 3, kind)) == pytest.approx(np.mean(expected), rel=1e-5)  # the JAX one
 
 
 def test_dice_scores_a_missed_window_like_none_and_overlap_better(mitsuba_cpu):

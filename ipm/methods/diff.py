@@ -51,13 +51,11 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
 def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
                   mitsuba_tuned: bool = False):
     """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
-    the JAX one (``ipm.render.edges``) unless a class-mask term needs Mitsuba's visibility or the
-    path's settings were tuned with Mitsuba (``mitsuba_tuned``: a camera whose field of view is
-    unknown too, ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated there
-    on the dev split. With the field of view given, the pitch starts were measured with JAX)."""
-    if name == "jax" and class_term:
-        raise UserError("the jax renderer draws silhouettes only: with window masks use renderer "
-                        "mitsuba or auto, or window_weight 0")
+    the JAX one (``ipm.render.edges``) unless a class-mask term is on (buildings' window masks:
+    the default settings were tuned with Mitsuba's) or the path's settings were tuned with
+    Mitsuba (``mitsuba_tuned``: a camera whose field of view is unknown too, ``ipm.photo``, whose
+    focal sweep was; the JAX renderer is not validated there on the dev split. With the field of
+    view given, the pitch starts were measured with JAX)."""
     if name == "jax" or (name == "auto" and not class_term and not mitsuba_tuned):
         return EdgeRenderer(c2w, fov_x, width, height, spp)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
