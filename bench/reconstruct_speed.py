@@ -10,8 +10,8 @@ ratio is measured on the same machine at the same time.
 
 Iterations: one loss and gradient of the first case's input view at the refinement level of detail
 (render + backward); for the JAX renderer also a population of individuals in one call
-(``EdgeRenderer.loss_and_grad_batch``) at ``--population-res``; for Mitsuba a population costs its
-size in single calls. ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine
+(``EdgeRenderer.loss_and_grad_batch``) at ``--population-res``; for Mitsuba, and for JAX with a
+class mask (buildings' windows), a population costs its size in single calls. ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine
 lacks); ``--keep DIR`` keeps each case's reference and reconstructions there, for ``ipm evaluate``
 on another machine. Prints a table and writes the numbers as JSON (with the machine's description).
 Targets (issues 2, 11, 13): a default-profile cup or building within 5 minutes on 2 CPU cores; the
@@ -117,7 +117,7 @@ def main() -> None:
             rng = np.random.default_rng(0)
             for size in args.populations:
                 zs = z + rng.normal(0.0, 0.01, (size, len(z)))
-                if renderer == "jax":
+                if renderer == "jax" and objective.class_targets is None:  # a class mask: one call each
                     call = lambda: objective.renderer.loss_and_grad_batch(fn, zs, faces, objective.targets,  # noqa: E731
                                                                           range(size))
                 else:
