@@ -52,7 +52,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="diff: weight of the window-mask term for buildings with semantic images (default 1; 0: silhouette only)")
     r.add_argument("--renderer", default=None, choices=["auto", "jax", "mitsuba"],
                    help="diff: silhouette renderer (jax: edge sampling, one compiled function; mitsuba; "
-                        "auto: jax, but mitsuba with window masks or an unknown field of view; "
+                        "auto: jax, but mitsuba for an unknown field of view; "
                         "default: the profile's)")
 
     pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics)")

@@ -129,14 +129,16 @@ class DiffProfile:
     """Samples per pixel of the silhouette renders."""
     renderer: str = "auto"
     """Silhouette renderer: ``jax`` (``ipm.render.edges``: scanline coverage and edge-sampling
-    gradients at the scanlines' boundary crossings, one compiled function with the generator),
-    ``mitsuba`` (``ipm.render.silhouette``), or ``auto`` (the default): jax for silhouettes,
-    Mitsuba where a class-mask term is on (buildings' window masks) and for an unknown camera
-    (``ipm.photo``, tuned with Mitsuba, not yet validated with JAX on dev). Dev cups, one view,
-    default profile, seeds 0-1: mean IoU jax 0.925, Mitsuba 0.914 (per case in the README), a cup
-    in a fifth of the time. The JAX renderer draws window masks too (unbiased window gradients,
-    a building in 0.39 x Mitsuba's time): dev buildings in family 0.962 against 0.965 (26 runs),
-    but the dev split's out-of-family building 0.801 against 0.882 (README), so not yet ``auto``'s."""
+    gradients at the scanlines' boundary crossings, one compiled function with the generator; a
+    class mask too, by a z-buffer per sample), ``mitsuba`` (``ipm.render.silhouette``), or ``auto``
+    (the default): jax, but Mitsuba for an unknown camera whose field of view is estimated
+    (``ipm.photo``: its focal sweep was tuned with Mitsuba, not yet validated with JAX on dev).
+    Dev cups, one view, default profile, seeds 0-1: mean IoU jax 0.925, Mitsuba 0.914 (per case
+    in the README), a cup in a fifth of the time. Dev buildings with window masks (one view,
+    seeds 0 and 1 in family, 0-7 on building_ext): in family 0.962 against 0.965 (26 runs,
+    paired difference -0.003, standard error 0.007), building_ext 0.794 against 0.820 (8 runs
+    each, standard deviations 0.09: some seeds of either end 15-25 degrees off in yaw, 4 of 8
+    with JAX, 2 of 8 with Mitsuba), a building in 0.39 x Mitsuba's time (README)."""
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""

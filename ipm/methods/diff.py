@@ -48,15 +48,15 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
     return (views.semantics == value).astype(np.float32), generator.semantic_labels[name]
 
 
-def make_renderer(name: str, class_term: bool, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
+def make_renderer(name: str, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
                   mitsuba_tuned: bool = False):
     """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
-    the JAX one (``ipm.render.edges``) unless a class-mask term is on (buildings' window masks:
-    the default settings were tuned with Mitsuba's) or the path's settings were tuned with
-    Mitsuba (``mitsuba_tuned``: a camera whose field of view is unknown too, ``ipm.photo``, whose
-    focal sweep was; the JAX renderer is not validated there on the dev split. With the field of
-    view given, the pitch starts were measured with JAX)."""
-    if name == "jax" or (name == "auto" and not class_term and not mitsuba_tuned):
+    the JAX one (``ipm.render.edges``; with a class-mask term too: buildings' window masks agree
+    with Mitsuba's on the dev split within the seeds' spread, README) unless the path's settings
+    were tuned with Mitsuba (``mitsuba_tuned``: a camera whose field of view is unknown too,
+    ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated there on the dev
+    split. With the field of view given, the pitch starts were measured with JAX)."""
+    if name == "jax" or (name == "auto" and not mitsuba_tuned):
         return EdgeRenderer(c2w, fov_x, width, height, spp)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
 
@@ -69,8 +69,7 @@ class Objective:
         self.targets = resize_masks(views.masks, width)
         h = self.targets.shape[1]
         masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
-        self.renderer = make_renderer(profile.renderer, masks is not None, views.c2w, views.fov_x, width, h,
-                                      profile.spp,
+        self.renderer = make_renderer(profile.renderer, views.c2w, views.fov_x, width, h, profile.spp,
                                       mitsuba_tuned=problem.fov_estimated is True)
         self.class_targets = None if masks is None else resize_masks(masks[0], width)
         self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
