@@ -1,7 +1,7 @@
 """The differentiable path: memetic search at low resolution, then Adam at doubling resolutions.
 
-Loss: mean over views of the pixel MSE between the Mitsuba silhouette and the reference
-mask, plus the generator's smoothness prior; for a generator with a ``mask_class`` (buildings:
+Loss: mean over views of the pixel MSE between the rendered silhouette (``DiffProfile.renderer``)
+and the reference mask, plus the generator's smoothness prior; for a generator with a ``mask_class`` (buildings:
 windows) and views with semantic images, plus ``window_weight`` times the ``window_loss`` (MSE or Dice)
 between the rendered and the reference masks of that class over a mean pyramid (without semantic
 images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
