@@ -283,6 +283,36 @@ def test_decide_tries_every_kind_of_roof():
     assert round(decide(problem, z, get_profile("default", decide_steps=0), lowest_at(1), lowest_at(2))[i] * 2) == 0
 
 
+def test_decide_race_gives_a_descending_candidate_more_steps():
+    """With one round the converged current roof beats a new roof still on its way down (the
+    scoring objective's loss of the new one is its distance to a point the steps walk towards);
+    with ``decide_rounds`` the better half go on from where they stand and the new roof wins."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    ix = gen.spec.index
+    i, w = ix["roof_type"], ix["width"]
+    x = gen.presets["house"].copy()
+    x[i] = 1
+    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
+    target = z[w] + 0.1
+
+    def walk(v, seed=None):
+        g = np.zeros_like(v)
+        g[w] = 2 * (v[w] - target)
+        return float((v[w] - target) ** 2), g
+
+    def score(v, seed=None):
+        roof = round(v[i] * 2)
+        return (1.0 if roof == 0 else 0.03 if roof == 1 else abs(v[w] - target)), np.zeros_like(v)
+
+    kinds = []
+    for rounds in (1, 3):
+        best = decide(problem, z, get_profile("default", decide_steps=3, decide_rounds=rounds), walk, score,
+                      record=lambda name, loss: None)
+        kinds.append(round(best[i] * 2))
+    assert kinds == [1, 2]
+
+
 def test_decide_tries_every_roof_turned_a_quarter_too():
     """With ``recount`` each roof type is also tried turned a quarter, width and depth traded and
     the counts read in again (here: recorded); the turned gable wins where the scoring objective

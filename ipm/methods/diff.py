@@ -243,27 +243,44 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     to a hip roof's basin (its walls and slope must move together). With ``recount`` (``z`` ->
     ``z`` with the counts the views show read in) each value is also tried turned a quarter
     (:func:`turned`): a near-square house fitted a quarter off with a pyramid-like hip roof
-    matches a gable roof only turned, since a gable's ridge has a direction."""
+    matches a gable roof only turned, since a gable's ridge has a direction. With
+    ``decide_rounds`` above 1 the candidates race: after each round the better half (at least
+    two) get ``decide_steps`` more from where they stand, since the current value starts
+    converged and a new roof is still descending when the first round ends."""
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = _scorer(score_objective, (10_005, 10_006))
     for name in gen.categorical:
         i = spec.index[name]
         if profile.decide_steps <= 0 or not gen.active(spec.from_unit(z[:n]))[i]:
             continue
-        best, best_loss = z, np.inf
+        pool = []
         for k in range(int(spec.levels[i])):
             alt = z.copy()
             alt[i] = k / (spec.levels[i] - 1)
             value = f"{name}={spec.lower[i] + k:g}"
-            tries = [(value, alt)] + ([(f"{value} turned", recount(turned(problem, alt, np.pi / 2)))]
+            pool += [(value, alt)] + ([(f"{value} turned", recount(turned(problem, alt, np.pi / 2)))]
                                       if recount is not None else [])
-            for tag, start in tries:
-                cand, loss = _tried(problem, steps_objective, start, tag, profile.decide_steps, profile, score,
-                                    on_eval, record)
-                if loss < best_loss:
-                    best, best_loss = cand, loss
-        z = best
+        for r in range(max(profile.decide_rounds, 1)):
+            tried = [_tried(problem, steps_objective, start, tag if r == 0 else f"{tag} (round {r + 1})",
+                            profile.decide_steps, profile, score, on_eval, record) for tag, start in pool]
+            order = np.argsort([loss for _, loss in tried], kind="stable")
+            pool = [(pool[j][0], tried[j][0]) for j in order[:race_survivors(len(pool))]]
+        z = pool[0][1]
     return z
+
+
+def race_survivors(candidates: int) -> int:
+    """How many of ``candidates`` go on to :func:`decide`'s next round: the better half, at least two."""
+    return min(candidates, max(2, (candidates + 1) // 2))
+
+
+def decide_evaluations(candidates: int, profile: DiffProfile) -> int:
+    """Adam steps :func:`decide` spends on ``candidates`` values of one parameter (progress bar)."""
+    total = 0
+    for _ in range(max(profile.decide_rounds, 1)):
+        total += candidates * profile.decide_steps
+        candidates = race_survivors(candidates)
+    return total
 
 
 def sweeps_focal(problem: Problem, profile: DiffProfile) -> bool:
@@ -431,8 +448,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     memetic_evals = profile.ga_iterations * (profile.adam_per_iteration + profile.population)
     total = (len(starts) * memetic_evals + sum(profile.refine_iterations)
              + len(profile.refine_res)
-             + sum(int(problem.spec.levels[problem.spec.index[c]]) for c in problem.generator.categorical)
-             * profile.decide_steps * (1 + turns)
+             + sum(decide_evaluations(int(problem.spec.levels[problem.spec.index[c]]) * (1 + turns), profile)
+                   for c in problem.generator.categorical)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
              + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
