@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -19,7 +20,8 @@ from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
-from ipm.methods.diff import Objective, class_masks, decide, neighbours, polish, read_counts_into, turned
+from ipm.methods.diff import (Objective, class_masks, decide, neighbours, polish, read_counts_into, sight_axis,
+                              sweep_sight, turned)
 from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -340,6 +342,52 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
     plain = decide(problem, z, get_profile("default", decide_steps=2), lambda v, seed=None: (0.0, np.zeros_like(v)),
                    score)
     assert plain[n] == z[n] and round(plain[ix["roof_type"]] * 2) == 1
+
+
+def test_sight_sweep_stretches_the_side_the_view_looks_along():
+    """The footprint side the first camera looks along is the one stretched (depth seen from the
+    front, width from the side or with the house turned a quarter); each stretch keeps the face
+    nearest the camera where it was and moves the far one; the lowest score wins when it is lower
+    by more than the margin, and without steps or a footprint (a cup) nothing changes."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    ix, n = gen.spec.index, problem.n_shape
+    x = gen.presets["house"].copy()
+    z = problem.initial_z(gen.spec.to_unit(x), 0.0)
+
+    def seen_from(position):
+        c2w = np.eye(4)
+        c2w[:3, 3] = position
+        return SimpleNamespace(c2w=c2w[None])
+
+    front, side = seen_from([0.4, 0.6, 3.0]), seen_from([3.0, 0.6, -0.4])
+    assert sight_axis(problem, front, z)[0] == ix["depth"]
+    assert sight_axis(problem, side, z)[0] == ix["width"]
+    assert sight_axis(problem, front, turned(problem, z, np.pi / 2))[0] == ix["width"]
+    depth = x[ix["depth"]]
+    want = gen.spec.to_unit(np.where(np.arange(n) == ix["depth"], depth * 0.7, x))[ix["depth"]]
+
+    def score(v, seed=None):
+        return float(abs(v[ix["depth"]] - want)), np.zeros_like(v)
+
+    still = lambda v, seed=None: (0.0, np.zeros_like(v))  # noqa: E731: the steps move nothing
+    profile = get_profile("default", sight_steps=2)
+    best = sweep_sight(problem, front, z, profile, still, score)
+    assert gen.spec.from_unit(best[:n])[ix["depth"]] == pytest.approx(depth * 0.7)
+    before, after = problem.world_mesh(z, 0).vertices[:, 2], problem.world_mesh(best, 0).vertices[:, 2]
+    assert after.max() == pytest.approx(before.max(), abs=1e-5)  # the near (front) face held
+    assert after.min() - before.min() == pytest.approx(0.3 * depth * np.exp(z[n + 6]), rel=1e-4)
+    assert sweep_sight(problem, front, z, get_profile("default", sight_steps=0), still, score) is z
+
+    def close(v, seed=None):  # the stretch only 1 % lower than the extent as it stands
+        return 1.0 - 0.01 * (abs(v[ix["depth"]] - want) < 1e-6), np.zeros_like(v)
+
+    for margin, stretched in ((0.0, True), (0.05, False)):
+        kept = sweep_sight(problem, front, z, get_profile("default", sight_steps=2, sight_margin=margin), still, close)
+        assert bool(abs(kept[ix["depth"]] - want) < 1e-6) == stretched
+    cups = Problem(get_generator("dishes"), np.zeros(3), 1.0)
+    cup = cups.initial_z(np.full(cups.n_shape, 0.5), 0.0)
+    assert sweep_sight(cups, front, cup, profile, still, score) is cup
 
 
 def test_seen_counts_follow_the_facades_the_camera_faces():

@@ -158,6 +158,11 @@ class Generator:
     marker: tuple[str, str] | None = None
     """A semantic class that one facade alone carries, and that facade's count name (buildings:
     the door, on the front): it tells the object's front from its back (``ipm.facades``)."""
+    footprint: tuple[str, str] | None = None
+    """The parameters that set the object's extent along its own x and z axes (buildings: width
+    and depth), each independent of the other: from one view the extent along the line of sight
+    is poorly seen, so the differentiable path also tries it stretched and shrunk
+    (:func:`ipm.methods.diff.sweep_sight`). None: no such pair (a round object)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""
@@ -203,8 +208,13 @@ class Generator:
 
     def quarter_turned(self, x: np.ndarray) -> np.ndarray:
         """``x`` with the object's sides traded so that, turned a quarter about +y, it covers
-        what ``x`` covered (for :attr:`marker` turns). Default: ``x`` (a round object)."""
-        return np.array(x, np.float64)
+        what ``x`` covered (for :attr:`marker` turns): the :attr:`footprint`'s two sides swapped;
+        ``x`` itself without one (a round object)."""
+        out = np.array(x, np.float64)
+        if self.footprint is not None:
+            i, j = (self.spec.index[name] for name in self.footprint)
+            out[i], out[j] = x[j], x[i]
+        return self.spec.clip(out)
 
     def change_count(self, x: np.ndarray, name: str, value: float) -> np.ndarray:
         """``x`` with the count parameter ``name`` set to ``value`` and the continuous parameters

@@ -226,6 +226,7 @@ class Buildings(Generator):
     min_fit_lod = 2
     marker = ("door", "windows_front")
     categorical = ("roof_type",)
+    footprint = ("width", "depth")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}
     presets = {}  # filled below from named edits of the defaults
@@ -265,14 +266,6 @@ class Buildings(Generator):
         """The door's width and recess (the window inset)."""
         ix = self.spec.index
         return float(x[ix["door_width"]]), float(x[ix["window_inset"]])
-
-    def quarter_turned(self, x):
-        """Width and depth swapped (the footprint turned a quarter covers the same ground); the
-        counts of the sides the input view shows are read again after the turn."""
-        ix = self.spec.index
-        out = np.array(x, np.float64)
-        out[ix["width"]], out[ix["depth"]] = x[ix["depth"]], x[ix["width"]]
-        return self.spec.clip(out)
 
     def sample(self, rng):
         """A random plausible building (the sampler of in-family cases), not a preset: footprint

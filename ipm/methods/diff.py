@@ -283,6 +283,57 @@ def decide_evaluations(candidates: int, profile: DiffProfile) -> int:
     return total
 
 
+def sight_axis(problem: Problem, views: Views, z: np.ndarray) -> tuple[int, np.ndarray] | None:
+    """The :attr:`~ipm.generators.base.Generator.footprint` parameter (its index) whose side the
+    first view looks along more nearly at ``z``'s pose, and the world step that moves the object
+    by one unit of that parameter away from the camera; None without a footprint."""
+    gen = problem.generator
+    if gen.footprint is None:
+        return None
+    world = problem.to_world(z)
+    origin, ends = world(np.zeros((1, 3)))[0], world(np.eye(3)[[0, 2]])
+    axes = ends - origin  # the object's x and z axes in the world, times its scale
+    along = axes @ (views.c2w[0, :3, 3] - origin)
+    k = int(np.argmax(np.abs(along)))
+    return problem.spec.index[gen.footprint[k]], -np.sign(along[k]) * axes[k]
+
+
+def sight_evaluations(problem: Problem, profile: DiffProfile) -> int:
+    """Adam steps :func:`sweep_sight` spends (progress bar)."""
+    return (problem.generator.footprint is not None) * (len(profile.sight_factors) + 1) * profile.sight_steps
+
+
+def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProfile, steps_objective,
+                score_objective, on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """The extent along the first view's line of sight tried at several values: ``z`` and ``z``
+    with that :attr:`~ipm.generators.base.Generator.footprint` side times each of
+    ``sight_factors`` (the face nearest the camera held in place, so the front stays where the
+    image puts it), each given ``sight_steps`` Adam steps under ``steps_objective`` and compared
+    under ``score_objective`` (same render seeds); the lowest loss wins if it is lower than the
+    unstretched one's by more than ``sight_margin`` (a fraction). From one view that extent
+    shows only in a sliver of side wall and in the roof's rise, which trade with the pose, so a fit
+    keeps whatever extent it started from."""
+    axis = sight_axis(problem, views, z)
+    if axis is None or profile.sight_steps <= 0:
+        return z
+    (i, away), spec, n = axis, problem.spec, problem.n_shape
+    score = _scorer(score_objective, (10_007, 10_008))
+    x = spec.from_unit(z[:n])
+    kept = _tried(problem, steps_objective, z, "sight x1", profile.sight_steps, profile, score, on_eval, record)
+    tried = []
+    for factor in profile.sight_factors:
+        alt_x = x.copy()
+        alt_x[i] *= factor
+        alt_x = spec.clip(alt_x)
+        alt = z.copy()
+        alt[:n] = spec.to_unit(alt_x)
+        alt[n + 3:n + 6] += away * (alt_x[i] - x[i]) / 2 / problem.anchor_s
+        tried.append(_tried(problem, steps_objective, problem.clip(alt), f"sight x{factor:g}",
+                            profile.sight_steps, profile, score, on_eval, record))
+    best = min(tried, key=lambda t: t[1], default=kept)
+    return best[0] if best[1] < kept[1] * (1 - profile.sight_margin) else kept[0]
+
+
 def sweeps_focal(problem: Problem, profile: DiffProfile) -> bool:
     """Whether :func:`sweep_focal` runs: a camera of unknown field of view and a sweep in the profile."""
     return problem.fov_estimated is True and profile.focal_sweep > 0 and profile.focal_steps > 0
@@ -450,6 +501,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
              + len(profile.refine_res)
              + sum(decide_evaluations(int(problem.spec.levels[problem.spec.index[c]]) * (1 + turns), profile)
                    for c in problem.generator.categorical)
+             + sight_evaluations(problem, profile)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
              + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
@@ -505,6 +557,10 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             state["stage"] = "decide"
             recount = (lambda z: read_counts_into(problem, views, z)[0] if reads else z) if turns else None
             zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res), recount)
+                  for z in zs]
+        if stage == len(profile.refine_res) - 1 and profile.sight_steps > 0:
+            state["stage"] = "sight"
+            zs = [sweep_sight(problem, views, z, profile, previous, objective, on_eval, recorder("sight", res))
                   for z in zs]
         if stage == len(profile.refine_res) - 1 and sweeps_focal(problem, profile):
             state["stage"] = "focal"
