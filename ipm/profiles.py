@@ -92,21 +92,28 @@ class DiffProfile:
     the views show read in again) for a generator with a front (``Generator.marker``): one view
     without the door cannot tell a house's front from its side, but a gable's ridge can."""
     sight_steps: int = 0
-    """Before the last refinement stage, for a generator with a :attr:`~ipm.generators.base.Generator.footprint`:
-    the footprint's side that the first view looks along is tried as it stands and times each of
+    """Before the last refinement stage, for a generator with a ``footprint`` (buildings): that
+    footprint's side the first view looks along is tried as it stands and times each of
     ``sight_factors`` (its near face held where it is), each start given this many Adam steps at
-    the previous stage's resolution and compared at the last's; the lowest loss goes on
-    (``ipm.methods.diff.sweep_sight``); 0: none. One view shows the extent along its line of sight
-    only through a sliver of side wall and the roof's rise, and the fits settle where they start
-    (building_1: depth 1.16-1.20 for the truth's 0.95, its truth's loss lower)."""
+    the previous stage's resolution and compared at the last's; the lowest loss goes on, by a
+    margin (``sight_margin``; ``ipm.methods.diff.sweep_sight``); 0: none. One view shows the
+    extent along its line of sight only through a sliver of side wall and the roof's rise, and
+    the fits settle where they start (building_1: depth 1.16-1.20 for the truth's 0.95, the
+    truth's loss lower). 90 in the default profile: dev buildings in family (building_1,
+    building_d1-d12, seeds 0-1, 26 runs) 0.967 -> 0.978 mean IoU (paired +0.011, standard error
+    0.008; a stretch won 10 times: building_1 0.80 / 0.88 -> 0.99 / 0.97, five others up by
+    0.003-0.007, three down by 0.002-0.006), worst 0.802 -> 0.914; building_ext (out of family,
+    seeds 0-7) 0.787 -> 0.784 (paired -0.003, standard error 0.004)."""
     sight_factors: tuple[float, ...] = (0.7, 0.84, 1.19, 1.43)
     """The stretches ``sight_steps`` tries (about 18 % apart in the log)."""
     sight_margin: float = 0.05
     """A stretch replaces the extent as it stands only with a loss lower by more than this
-    fraction: where the generator can make the object the right extent removes most of what is
-    left of the loss (dev in family: 10-33 % lower), while on a shape it cannot make another
-    extent trades a per cent or two of a large remainder for nothing (building_ext: 0.2-1.6 %
-    lower, 64-view IoU down on six of eight seeds with no margin)."""
+    fraction: where the generator can make the object, the right extent removes most of what is
+    left of the loss (dev in family, where a stretch won: 6-33 % lower), while on a shape it
+    cannot make, another extent trades a per cent or two of a large remainder for nothing
+    (building_ext: 0.2-1.6 % lower; with no margin a stretch won on all eight seeds and the
+    64-view IoU went 0.787 -> 0.779, five seeds down by 0.002-0.033). Chosen on dev; with it no
+    stretch wins on building_ext."""
     focal_sweep: int = 0
     """For a camera whose field of view is unknown (``ipm.photo``): before the last refinement
     stage, the focal gene is held at the estimate's and at this many points on either side,
