@@ -298,9 +298,14 @@ def sight_axis(problem: Problem, views: Views, z: np.ndarray) -> tuple[int, np.n
     return problem.spec.index[gen.footprint[k]], -np.sign(along[k]) * axes[k]
 
 
+def sweeps_sight(problem: Problem, profile: DiffProfile) -> bool:
+    """Whether :func:`sweep_sight` runs: a generator with a footprint and a sweep in the profile."""
+    return problem.generator.footprint is not None and profile.sight_steps > 0
+
+
 def sight_evaluations(problem: Problem, profile: DiffProfile) -> int:
     """Adam steps :func:`sweep_sight` spends (progress bar)."""
-    return (problem.generator.footprint is not None) * (len(profile.sight_factors) + 1) * profile.sight_steps
+    return sweeps_sight(problem, profile) * (len(profile.sight_factors) + 1) * profile.sight_steps
 
 
 def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProfile, steps_objective,
@@ -313,10 +318,10 @@ def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProf
     unstretched one's by more than ``sight_margin`` (a fraction). From one view that extent
     shows only in a sliver of side wall and in the roof's rise, which trade with the pose, so a fit
     keeps whatever extent it started from."""
-    axis = sight_axis(problem, views, z)
-    if axis is None or profile.sight_steps <= 0:
+    if not sweeps_sight(problem, profile):
         return z
-    (i, away), spec, n = axis, problem.spec, problem.n_shape
+    (i, away), spec, n = sight_axis(problem, views, z), problem.spec, problem.n_shape
+    t = n + POSE_NAMES.index("dx")  # the translation genes dx, dy, dz
     score = _scorer(score_objective, (10_007, 10_008))
     x = spec.from_unit(z[:n])
     kept = _tried(problem, steps_objective, z, "sight x1", profile.sight_steps, profile, score, on_eval, record)
@@ -327,7 +332,7 @@ def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProf
         alt_x = spec.clip(alt_x)
         alt = z.copy()
         alt[:n] = spec.to_unit(alt_x)
-        alt[n + 3:n + 6] += away * (alt_x[i] - x[i]) / 2 / problem.anchor_s
+        alt[t:t + 3] += away * (alt_x[i] - x[i]) / 2 / problem.anchor_s
         tried.append(_tried(problem, steps_objective, problem.clip(alt), f"sight x{factor:g}",
                             profile.sight_steps, profile, score, on_eval, record))
     best = min(tried, key=lambda t: t[1], default=kept)
@@ -558,7 +563,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             recount = (lambda z: read_counts_into(problem, views, z)[0] if reads else z) if turns else None
             zs = [decide(problem, z, profile, previous, objective, on_eval, recorder("decide", res), recount)
                   for z in zs]
-        if stage == len(profile.refine_res) - 1 and profile.sight_steps > 0:
+        if stage == len(profile.refine_res) - 1 and sweeps_sight(problem, profile):
             state["stage"] = "sight"
             zs = [sweep_sight(problem, views, z, profile, previous, objective, on_eval, recorder("sight", res))
                   for z in zs]
