@@ -172,6 +172,14 @@ class DiffProfile:
     paired difference -0.003, standard error 0.007), building_ext 0.794 against 0.820 (8 runs
     each, standard deviations 0.09: some seeds of either end 15-25 degrees off in yaw, 4 of 8
     with JAX, 2 of 8 with Mitsuba), a building in 0.39 x Mitsuba's time (README)."""
+    memetic_batch: bool = False
+    """Evaluate the memetic population's steps a round at a time, one batched call of the JAX
+    renderer per topology (``ipm.optim.memetic.adam_steps_together``: the same seeds, so the same
+    fit up to a batched program's float rounding). Off: it did not pay where measured
+    (``bench/RESULTS.md``): on a CPU a batch costs its size in single calls, and on one H200 a
+    default-profile cup's single call costs 3.3 ms, a padded batch of 4 about 4.2 ms and of 16
+    about 7.5 ms, while the rounds are 270-370 against 910 single calls (the budget goes mostly to
+    the best few individuals). Only silhouettes are batched; class masks run one at a time."""
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""

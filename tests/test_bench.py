@@ -33,3 +33,15 @@ def test_devices_agree_compares_images_losses_and_gradients():
     (row,) = compare(here, there)
     assert row["pixels_differ"] == 1 and np.isclose(row["max_coverage_diff"], 0.75)
     assert np.isclose(row["loss_rel_diff"], 0.1) and np.isclose(row["grad_rel_diff"], 0.1)
+
+
+def test_cup_fits_splits_a_trace_into_steady_time_and_events():
+    """Gaps over the threshold are events (a stage's first call), the rest steady evaluations."""
+    import pandas as pd
+
+    split_time = _script("cup_fits").split_time
+    trace = pd.DataFrame({"stage": ["memetic"] * 4 + ["refine"] * 3,
+                          "seconds": np.cumsum([2.0, 0.003, 0.004, 0.003, 1.5, 0.004, 0.005])})
+    row = split_time(trace, 0.05)
+    assert row["events"] == 2 and row["seconds_events"] == 3.5
+    assert row["seconds_steady"] == 0.02 and row["median_eval_ms"] == 4.0 and row["memetic_s"] == 2.01

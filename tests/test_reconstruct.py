@@ -130,6 +130,39 @@ def test_match_area_recovers_the_scale(mitsuba_cpu):
     assert abs(fixed[-1] - z[-1]) < 0.25 * np.log(1.6)
 
 
+def test_batched_objective_matches_single_calls(mitsuba_cpu):
+    """``Objective.many``: points of two topologies (with and without a handle), padded to a batch
+    of 4, give the losses and gradients of one-at-a-time calls with the same seeds; ``batch`` is on
+    only where asked, and only for the JAX renderer's silhouettes."""
+    from ipm.io.views import Views
+    from ipm.methods.diff import Objective
+    from ipm.profiles import get_profile
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.silhouette import SilhouetteRenderer
+
+    gen = get_generator("dishes")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.5)
+    cam = orbit_camera([0, 0.3, 0], 3.0, 30.0, 20.0)[None]
+    truth = problem.world_mesh(z, 0)
+    masks = SilhouetteRenderer(cam, 0.7, 48, 48, spp=16).render(truth.vertices, truth.faces) > 0.5
+    views = Views(0.7, 48, 48, cam, masks.astype(np.float32))
+    objective = Objective(problem, views, 48, 0, get_profile("smoke", renderer="jax"))
+    no_handle = z.copy()
+    no_handle[gen.spec.index["has_handle"]] = 0.0
+    zs = [problem.clip(z + 0.03), no_handle, problem.clip(z - 0.02)]
+    losses, grads = objective.many(zs, [7, 8, 9])
+    for x, seed, loss, grad in zip(zs, [7, 8, 9], losses, grads):
+        one_loss, one_grad = objective(x, seed=seed)
+        assert loss == pytest.approx(one_loss, rel=1e-5)
+        np.testing.assert_allclose(grad, one_grad, rtol=1e-4, atol=1e-6 * np.abs(one_grad).max())
+    assert losses[0] != losses[2] and objective.calls == 3
+    np.testing.assert_array_equal(objective.seeds(2), [3, 4])
+    assert objective.batch(True) is not None and objective.batch(False) is None
+    mitsuba = Objective(problem, views, 48, 0, get_profile("smoke", renderer="mitsuba"))
+    assert mitsuba.batch(True) is None
+
+
 def test_finalists_are_distinct_basins():
     """``refine_candidates``: the best individuals that differ from every one taken before in
     their topology or by more than a quarter turn; near twins are passed over."""

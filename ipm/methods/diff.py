@@ -29,7 +29,7 @@ from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
 from ipm.methods import check_generator, method
-from ipm.optim.memetic import Individual, adam_steps, memetic
+from ipm.optim.memetic import Batch, Individual, adam_steps, memetic
 from ipm.photo import PITCH_PRIOR, fov_of
 from ipm.problem import POSE_NAMES, Problem
 from ipm.profiles import DiffProfile, get_profile
@@ -97,16 +97,47 @@ class Objective:
         return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
+        """Loss and gradient at ``z``, rendered with ``seed`` (default: the count of calls so far)."""
+        first = int(self.seeds(1)[0])
         fn, faces, n_vertices = self._groups(self.problem.key(z))
         loss, grad = self.renderer.loss_and_grad(fn, z, faces, n_vertices, self.targets,
-                                                 seed=self.calls if seed is None else seed,
+                                                 seed=first if seed is None else seed,
                                                  highlight_targets=self.class_targets,
                                                  highlight_weight=self.class_weight,
                                                  highlight_levels=self.class_levels,
                                                  highlight_loss=self.class_loss)
-        self.calls += 1
         reg, reg_grad = self.problem.regulariser(z, self.reg)
         return loss + reg, grad + reg_grad
+
+    def seeds(self, n: int) -> np.ndarray:
+        """The render seeds of the next ``n`` evaluations, those calls one at a time would draw."""
+        self.calls += n
+        return np.arange(self.calls - n, self.calls)
+
+    def batch(self, on: bool) -> Batch | None:
+        """Batched evaluations for the memetic stage (``DiffProfile.memetic_batch``), or None: off,
+        or a renderer other than JAX's silhouettes (class masks run one at a time)."""
+        if not on or not isinstance(self.renderer, EdgeRenderer) or self.class_targets is not None:
+            return None
+        return Batch(self.seeds, self.many)
+
+    def many(self, zs: list[np.ndarray], seeds) -> tuple[np.ndarray, np.ndarray]:
+        """Losses (b,) and gradients (b, m) of the points ``zs`` rendered with ``seeds``: one JAX
+        call per topology, padded to a power of 4 points (each size is a program to compile)."""
+        losses, grads = np.empty(len(zs)), np.empty((len(zs), len(zs[0])))
+        groups: dict = {}  # vertex function -> (faces, indices)
+        for i, z in enumerate(zs):
+            fn, faces, _ = self._groups(self.problem.key(z))
+            groups.setdefault(fn, (faces, []))[1].append(i)
+        for fn, (faces, idx) in groups.items():
+            size = 4 ** int(np.ceil(np.log(max(len(idx), 2)) / np.log(4) - 1e-9))
+            pad = idx + idx[:1] * (size - len(idx))
+            loss, grad = self.renderer.loss_and_grad_batch(fn, np.stack([zs[i] for i in pad]), faces, self.targets,
+                                                           [int(seeds[i]) for i in pad])
+            for k, i in enumerate(idx):
+                reg, reg_grad = self.problem.regulariser(zs[i], self.reg)
+                losses[i], grads[i] = loss[k] + reg, grad[k] + reg_grad
+        return losses, grads
 
     def _render(self, z: np.ndarray) -> np.ndarray:
         fn, faces, n_vertices = self._groups(self.problem.key(z))
@@ -547,7 +578,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
         with problem.holding(held):
             start = initial_population(problem, profile, rng, objective.match_area)
             final += memetic(start, objective, problem.clip, problem.key, problem.n_shape, levels, profile, rng,
-                             on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, niche=niche)
+                             on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, niche=niche,
+                             batch=objective.batch(profile.memetic_batch))
     final.sort(key=lambda ind: ind.best_loss)
     checkpoint(final[0].best_z)
     state["stage"] = "polish"

@@ -15,7 +15,8 @@ Per generation (DESIGN.md, the authors' settings are ``ipm.profiles.PROFILES["pa
    gene moved with probability ``mutate_share / 5`` (:func:`move_discrete`: a two-valued gene
    flips, a many-valued one steps to a neighbouring value or draws another), the yaw jumping to
    a random bin with probability ``mutate_share``.
-``evaluate(z) -> (loss, grad)`` is the only link to rendering, so the algorithm is testable alone.
+``evaluate(z) -> (loss, grad)`` (and, for batched calls, a :class:`Batch`) is the only link to
+rendering, so the algorithm is testable alone.
 """
 from __future__ import annotations
 
@@ -68,25 +69,67 @@ def share_budget(budget: int, logq: np.ndarray) -> np.ndarray:
 
 def adam_steps(ind: Individual, n: int, evaluate: Callable, clip: Callable, reject_ratio: float,
                on_eval: Callable) -> None:
-    """``n`` Adam steps on ``ind`` with step rejection (each step costs one evaluation)."""
-    if ind.grad is None:
-        ind.loss, ind.grad = evaluate(ind.z)
-        ind.remember()
+    """``n`` Adam steps on ``ind`` with step rejection (each step costs one evaluation; an individual
+    never evaluated spends its first on its starting point, and gets it even when ``n`` is 0)."""
+    for _ in range(max(n, 1 if ind.grad is None else 0)):
+        z, state = _propose(ind, clip)
+        loss, grad = evaluate(z)
+        _accept(ind, z, state, loss, grad, reject_ratio)
         on_eval(ind)
-        n -= 1
+
+
+@dataclass
+class Batch:
+    """Evaluations of several points in one call. ``seeds(n)``: the render seeds of the next ``n``
+    evaluations, those one-at-a-time calls would draw (so a batched run repeats a sequential one);
+    ``evaluate(zs, seeds)``: the losses (b,) and gradients (b, m) of the points ``zs``."""
+
+    seeds: Callable[[int], np.ndarray]
+    evaluate: Callable[[list, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def adam_steps_together(inds: list[Individual], ns, batch: Batch, clip: Callable, reject_ratio: float,
+                        on_eval: Callable) -> None:
+    """:func:`adam_steps` with ``ns[i]`` steps for each ``inds[i]``, a round at a time: round ``r``
+    evaluates the ``r``-th point of every individual with more than ``r`` steps in one call. Each
+    evaluation gets the seed it would get if the individuals ran one after another in this order,
+    so every individual ends where :func:`adam_steps` would leave it; only the trace's order differs."""
+    ns = np.array([max(int(n), 1 if ind.grad is None else 0) for ind, n in zip(inds, ns)], int)
+    seeds = np.asarray(batch.seeds(int(ns.sum())))
+    first = np.concatenate([[0], np.cumsum(ns)[:-1]])
+    for r in range(int(ns.max(initial=0))):
+        active = np.nonzero(ns > r)[0]
+        proposals = [_propose(inds[i], clip) for i in active]
+        losses, grads = batch.evaluate([z for z, _ in proposals], seeds[first[active] + r])
+        for i, (z, state), loss, grad in zip(active, proposals, losses, grads):
+            _accept(inds[i], z, state, float(loss), grad, reject_ratio)
+            on_eval(inds[i])
+
+
+def _propose(ind: Individual, clip: Callable):
+    """The next point to evaluate for ``ind`` and the Adam state that goes with it: its starting
+    point (state None) if it was never evaluated, else one Adam step on."""
+    if ind.grad is None:
+        return ind.z, None
     if ind.adam is None:
         ind.adam = adam_init(ind.z)
-    for _ in range(max(n, 0)):
-        step, state = adam_update(ind.adam, ind.grad, ind.lr)
-        z_new = clip(ind.z + step)
-        loss, grad = evaluate(z_new)
-        ind.stall += 1
-        if not np.isfinite(loss) or loss > reject_ratio * ind.best_loss:
-            ind.lr *= 0.5
-        else:
-            ind.z, ind.loss, ind.grad, ind.adam = z_new, loss, grad, state
-            ind.remember()
-        on_eval(ind)
+    step, state = adam_update(ind.adam, ind.grad, ind.lr)
+    return clip(ind.z + step), state
+
+
+def _accept(ind: Individual, z: np.ndarray, state, loss: float, grad: np.ndarray, reject_ratio: float) -> None:
+    """Take the evaluation of a :func:`_propose` point: a starting point always; a step unless its
+    loss is not finite or exceeds ``reject_ratio`` times the best (then the rate is halved)."""
+    if state is None:
+        ind.loss, ind.grad = loss, grad
+        ind.remember()
+        return
+    ind.stall += 1
+    if not np.isfinite(loss) or loss > reject_ratio * ind.best_loss:
+        ind.lr *= 0.5
+    else:
+        ind.z, ind.loss, ind.grad, ind.adam = z, loss, grad, state
+        ind.remember()
 
 
 def yaw_bin(z: np.ndarray, n_shape: int, bins: int) -> int:
@@ -144,25 +187,31 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
             n_shape: int, levels: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
             on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z,
-            yaw_free: Callable = lambda z: False, niche: Callable = lambda z: 0) -> list[Individual]:
+            yaw_free: Callable = lambda z: False, niche: Callable = lambda z: 0,
+            batch: Batch | None = None) -> list[Individual]:
     """Run the memetic stage from ``initial``; the last generation, best first (one individual
     per topology key and yaw bin): the first one's ``best_z`` is the answer.
 
     ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
     rescales it to the targets' silhouette area, as it does for the initial population);
     ``yaw_free(z)``: the object ``z`` looks the same turned; ``niche(z)``: a further bin index that
-    keeps individuals apart (:func:`merge_bins`).
+    keeps individuals apart (:func:`merge_bins`); ``batch``: evaluate the population's steps a
+    round at a time in batched calls (:func:`adam_steps_together`; the same result as without).
     """
+    def steps(inds: list[Individual], ns) -> None:
+        if batch is not None:
+            adam_steps_together(inds, ns, batch, clip, profile.reject_ratio, on_eval)
+            return
+        for ind, n in zip(inds, ns):
+            adam_steps(ind, n, evaluate, clip, profile.reject_ratio, on_eval)
+
     pop = list(initial)
     for it in range(profile.ga_iterations):
-        for ind in pop:
-            if ind.grad is None:
-                adam_steps(ind, 1, evaluate, clip, profile.reject_ratio, on_eval)
+        fresh = [ind for ind in pop if ind.grad is None]
+        steps(fresh, [1] * len(fresh))
         losses = np.array([i.best_loss for i in pop])
         stalls = np.array([i.stall for i in pop])
-        for ind, n in zip(pop, share_budget(profile.adam_per_iteration, log_quality(losses, stalls, it))):
-            if n:
-                adam_steps(ind, n, evaluate, clip, profile.reject_ratio, on_eval)
+        steps(pop, share_budget(profile.adam_per_iteration, log_quality(losses, stalls, it)))
         for ind in pop:
             ind.key = key_of(ind.z)
         pop = merge_bins(pop, n_shape, profile.yaw_bins, yaw_free, niche)

@@ -388,6 +388,8 @@ class EdgeRenderer:
         self._budgets: dict = {}
         self._faces: dict = {}
         self._blocks: dict = {}
+        self._classes: dict = {}  # class key -> each face's class on the device
+        self._device: dict = {}  # id -> (a caller's array, its device copy): :meth:`_on_device`
 
     def _budget(self, key, vertices, faces: np.ndarray, classes: np.ndarray | None = None) -> int | tuple[int, int]:
         """The span budget for meshes of ``key`` (with ``classes``, the span and fragment budgets):
@@ -428,11 +430,11 @@ class EdgeRenderer:
             grown = tuple(_round_up(with_headroom(int(n), grown=True) + 1) if n > b else int(b) for n, b in zip(need, have))
             budget = self._budgets[key] = grown if classes is not None else grown[0]
 
-    def _jitter(self, seed: int) -> jnp.ndarray:
+    def _jitter(self, seed: int) -> np.ndarray:
         """Sample-grid jitter (n, H ss + W ss, 2) in [0, 1) for render ``seed``: each view's rows,
         then its columns (:func:`spans`)."""
         n = (self.height + self.width) * self.ss
-        return jnp.asarray(np.random.default_rng([int(seed), 7]).random((len(self.c2w), n, 2)), jnp.float32)
+        return np.random.default_rng([int(seed), 7]).random((len(self.c2w), n, 2)).astype(np.float32)
 
     def render(self, vertices: np.ndarray, faces, seed: int = 0) -> np.ndarray:
         """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With two face groups
@@ -485,23 +487,32 @@ class EdgeRenderer:
               highlight: tuple | None = None):
         """Losses (b,) and gradients (b, m) of ``zs`` (b, m), one compiled call (batched) or one per
         point; ``highlight``: (class targets, weight, levels, loss) of a second face group."""
-        zj = jnp.asarray(np.asarray(zs, np.float32))
-        targets = jnp.asarray(np.asarray(targets, np.float32))
-        jitter = jnp.stack([self._jitter(s) for s in seeds])
+        zj = np.asarray(zs, np.float32)  # numpy into the compiled calls: one transfer each, no eager ops
+        targets = self._on_device(targets)
+        jitter = np.stack([self._jitter(s) for s in seeds])
         if highlight is not None:
             return self._class_call(vertex_fn, zj, faces, targets, jitter, n_vertices, highlight)
         if _group_count(faces) > 1:
             raise UserError("the jax renderer's batched calls draw silhouettes only")
         groups = _face_classes(faces)[0]
+        z_in, jitter_in = (zj, jitter) if batched else (zj[0], jitter[0])
 
         def run(f, budget):
             fn = _loss_fn(vertex_fn, self.width, self.height, self.ss, budget, batched)
-            args = (f, targets, self._w2c, self.focal)
-            return fn(zj, *args, jitter) if batched else fn(zj[0], *args, jitter[0])
+            return fn(z_in, f, targets, self._w2c, self.focal, jitter_in)
 
         loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(zj[0]), run)
         grad = np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(len(zs), -1)
         return np.asarray(loss, np.float64).reshape(len(zs)), grad
+
+    def _on_device(self, array) -> jnp.ndarray:
+        """``array`` (float32) on the device, copied once per array object a caller passes again
+        and again (a search's target masks, at every step); the last few are kept."""
+        if id(array) not in self._device:
+            if len(self._device) >= 4:
+                self._device.clear()
+            self._device[id(array)] = (array, jnp.asarray(np.asarray(array, np.float32)))  # holds it: ids stay
+        return self._device[id(array)][1]
 
     def _class_call(self, vertex_fn, zj, faces, targets, jitter, n_vertices: int, highlight: tuple):
         """:meth:`_call` with a class-mask term, one point after another: the generator's vertices,
@@ -510,8 +521,10 @@ class EdgeRenderer:
             size = int(np.prod(jax.eval_shape(vertex_fn, zj[0]).shape))
             self._blocks[vertex_fn, n_vertices] = size // (3 * int(n_vertices))
         groups, classes = _face_classes(faces, n_vertices, self._blocks[vertex_fn, n_vertices])
-        cls, class_targets = jnp.asarray(classes), jnp.asarray(np.asarray(highlight[0], np.float32))
         key = ("class", *_faces_key(groups), len(classes) - int(classes.sum()))
+        if key not in self._classes:
+            self._classes[key] = jnp.asarray(classes)
+        cls, class_targets = self._classes[key], self._on_device(highlight[0])
         losses, grads = [], []
         for z, j in zip(zj, jitter):
             vertices = vertex_fn(z)
