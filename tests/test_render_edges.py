@@ -125,6 +125,24 @@ def test_batch_equals_single_calls_and_budget_grows():
         np.testing.assert_allclose(single[1], grad, rtol=1e-3, atol=1e-6)
 
 
+def test_target_masks_kept_on_the_device_follow_the_array_passed():
+    """The renderer keeps target masks on the device per array object: switching between two
+    targets, and passing a fresh array each call, gives the losses of a renderer that never saw
+    them before."""
+    gen, problem, z0, fn, topo = _mug()
+    cams = _cams()[:1]
+    full = EdgeRenderer(cams, FOV, 32, 32).render(np.asarray(fn(z0)).reshape(-1, 3), topo.faces)
+    empty = np.zeros_like(full)
+
+    def fresh(targets):
+        return EdgeRenderer(cams, FOV, 32, 32).loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=1)[0]
+
+    r = EdgeRenderer(cams, FOV, 32, 32)
+    for targets in (full, empty, full, empty.copy(), full.copy(), *[np.zeros_like(full) for _ in range(5)], full):
+        assert r.loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=1)[0] == fresh(targets)
+    assert fresh(empty) > 10 * fresh(full)
+
+
 def test_refusals():
     """More than one class mask, and a class mask in a batched call, are refused with one line."""
     gen, problem, z0, fn, topo = _mug()
