@@ -110,20 +110,28 @@ def test_simplify_drops_a_hidden_handle_and_keeps_a_visible_one(mitsuba_cpu):
         assert (problem.key(out) == (1,)) == kept
 
 
-def test_match_area_recovers_the_scale(mitsuba_cpu):
+def _one_view(preset: str, width: int):
+    """The dishes generator's ``preset`` at yaw 0.5 and the one view of it (a Mitsuba mask seen
+    from 30 degrees round and 20 up): generator, problem, ``z`` and the views."""
     from ipm.io.views import Views
-    from ipm.methods.diff import Objective
-    from ipm.profiles import get_profile
     from ipm.render.cameras import orbit_camera
     from ipm.render.silhouette import SilhouetteRenderer
 
     gen = get_generator("dishes")
     problem = Problem(gen, np.zeros(3), 1.0)
-    z = problem.initial_z(gen.spec.to_unit(gen.presets["tea_cup"]), 0.5)
+    z = problem.initial_z(gen.spec.to_unit(gen.presets[preset]), 0.5)
     cam = orbit_camera([0, 0.3, 0], 3.0, 30.0, 20.0)[None]
     truth = problem.world_mesh(z, 0)
-    masks = SilhouetteRenderer(cam, 0.7, 64, 64, spp=16).render(truth.vertices, truth.faces) > 0.5
-    objective = Objective(problem, Views(0.7, 64, 64, cam, masks.astype(np.float32)), 64, 0, get_profile("smoke"))
+    masks = SilhouetteRenderer(cam, 0.7, width, width, spp=16).render(truth.vertices, truth.faces) > 0.5
+    return gen, problem, z, Views(0.7, width, width, cam, masks.astype(np.float32))
+
+
+def test_match_area_recovers_the_scale(mitsuba_cpu):
+    from ipm.methods.diff import Objective
+    from ipm.profiles import get_profile
+
+    gen, problem, z, views = _one_view("tea_cup", 64)
+    objective = Objective(problem, views, 64, 0, get_profile("smoke"))
     wrong = z.copy()
     wrong[-1] += np.log(1.6)
     fixed = objective.match_area(wrong)
@@ -134,19 +142,10 @@ def test_batched_objective_matches_single_calls(mitsuba_cpu):
     """``Objective.many``: points of two topologies (with and without a handle), padded to a batch
     of 4, give the losses and gradients of one-at-a-time calls with the same seeds; ``batch`` is on
     only where asked, and only for the JAX renderer's silhouettes."""
-    from ipm.io.views import Views
     from ipm.methods.diff import Objective
     from ipm.profiles import get_profile
-    from ipm.render.cameras import orbit_camera
-    from ipm.render.silhouette import SilhouetteRenderer
 
-    gen = get_generator("dishes")
-    problem = Problem(gen, np.zeros(3), 1.0)
-    z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.5)
-    cam = orbit_camera([0, 0.3, 0], 3.0, 30.0, 20.0)[None]
-    truth = problem.world_mesh(z, 0)
-    masks = SilhouetteRenderer(cam, 0.7, 48, 48, spp=16).render(truth.vertices, truth.faces) > 0.5
-    views = Views(0.7, 48, 48, cam, masks.astype(np.float32))
+    gen, problem, z, views = _one_view("mug", 48)
     objective = Objective(problem, views, 48, 0, get_profile("smoke", renderer="jax"))
     no_handle = z.copy()
     no_handle[gen.spec.index["has_handle"]] = 0.0

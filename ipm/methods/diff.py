@@ -130,7 +130,9 @@ class Objective:
             fn, faces, _ = self._groups(self.problem.key(z))
             groups.setdefault(fn, (faces, []))[1].append(i)
         for fn, (faces, idx) in groups.items():
-            size = 4 ** int(np.ceil(np.log(max(len(idx), 2)) / np.log(4) - 1e-9))
+            size = 4
+            while size < len(idx):
+                size *= 4
             pad = idx + idx[:1] * (size - len(idx))
             loss, grad = self.renderer.loss_and_grad_batch(fn, np.stack([zs[i] for i in pad]), faces, self.targets,
                                                            [int(seeds[i]) for i in pad])
@@ -366,7 +368,7 @@ def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProf
         alt[t:t + 3] += away * (alt_x[i] - x[i]) / 2 / problem.anchor_s
         tried.append(_tried(problem, steps_objective, problem.clip(alt), f"sight x{factor:g}",
                             profile.sight_steps, profile, score, on_eval, record))
-    best = min(tried, key=lambda t: t[1], default=kept)
+    best = min(tried, key=lambda start: start[1], default=kept)
     return best[0] if best[1] < kept[1] * (1 - profile.sight_margin) else kept[0]
 
 
