@@ -231,3 +231,71 @@ def test_span_budget_headroom_by_backend(monkeypatch):
     assert edges.with_headroom(300, grown=False) == 400 and edges.with_headroom(300, grown=True) == 375
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert edges.with_headroom(300, grown=False) == edges.with_headroom(300, grown=True) == 900
+
+
+@pytest.fixture
+def fresh_programs():
+    """The renderer's program builders emptied before and after (their programs hold how they were built)."""
+    from ipm.render import edges
+
+    builders = (edges._render_fn, edges._class_render_fn, edges._loss_fn, edges._silhouette_loss, edges._class_loss_fn)
+
+    def clear():
+        for b in builders:
+            b.cache_clear()
+
+    clear()
+    yield clear
+    clear()
+
+
+def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_path, fresh_programs):
+    """With a program folder the renderer's programs (silhouette loss, single and batched, render,
+    class-mask loss) are exported there and give the numbers of programs traced afresh; a later
+    process loads them without tracing (export made to fail); a file that does not read back is
+    exported again."""
+    from jax import export
+
+    from ipm.render import edges, programs
+
+    gen, problem, z0, fn, topo = _mug()
+    _, hz, hfn, htopo, groups, hcams = _house()
+    cams = _cams()[:1]
+    targets = EdgeRenderer(cams, FOV, 32, 32).render(np.asarray(fn(z0)).reshape(-1, 3), topo.faces)
+    zs = z0 + np.random.default_rng(0).normal(0, 0.02, (2, len(z0)))
+    v = np.asarray(hfn(hz)).reshape(-1, 3)
+    faces, classes = edges._face_classes(groups)
+    h = EdgeRenderer(hcams[:1], FOV, 32, 32)
+    blank = np.zeros((1, 32, 32), np.float32)
+    budgets = h._budget("house", lambda: v, faces, classes)
+
+    def numbers(every: bool = True):
+        r = EdgeRenderer(cams, FOV, 32, 32)
+        out = list(r.loss_and_grad(fn, zs[0], topo.faces, len(topo.uv), targets, seed=3))
+        if every:  # the class loss without the building's pullback (half a minute to compile)
+            class_loss = edges._class_loss_fn(32, 32, h.ss, budgets, (0.5, 1, "mse"))
+            out += [*r.loss_and_grad_batch(fn, zs, topo.faces, targets, seeds=[3, 4]), *h.render(v, groups)[0],
+                    *class_loss(v.reshape(-1), faces, classes, blank, blank, h._w2c, h.focal, h._jitter(1))[:2]]
+        return out
+
+    traced = numbers()
+    folder = tmp_path / "programs"
+    monkeypatch.setattr(programs, "program_folder", lambda: folder)
+    fresh_programs()
+    for a, b in zip(traced, numbers()):
+        np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
+    assert len(list(folder.glob("*.jaxexport"))) == 4  # silhouette loss, batched loss, class loss, class render
+
+    def no_export(*args, **kwargs):
+        raise AssertionError("traced again")
+
+    first = min(folder.glob("*.jaxexport"), key=lambda p: p.stat().st_mtime)  # the single loss
+    first.write_bytes(b"half a program")
+    fresh_programs()
+    numbers(every=False)  # the unreadable file exported again
+    with monkeypatch.context() as m:
+        m.setattr(export, "export", no_export)
+        fresh_programs()
+        for a, b in zip(traced, numbers(every=False)):
+            np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
+    assert len(list(folder.glob("*.jaxexport"))) == 4

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.errors import UserError
+from ipm.render.programs import StoredProgram
 
 NEAR = 1e-3
 """Vertices closer to the camera plane than this (scene units) are dropped with their triangles."""
@@ -579,20 +580,20 @@ def _face_classes(faces, n_vertices: int = 0, blocks: int = 1) -> tuple[np.ndarr
 
 
 @lru_cache(maxsize=64)
-def _render_fn(width: int, height: int, ss: int, budget: int):
-    """jit(vertices, faces, w2c, focal, jitter) -> (pixel areas (n, H, W), spans needed per view)."""
+def _render_fn(width: int, height: int, ss: int, budget: int) -> StoredProgram:
+    """(vertices, faces, w2c, focal, jitter) -> (pixel areas (n, H, W), spans needed per view)."""
 
     def fn(vertices, faces, w2c, focal, jitter):
         area, needed, _ = jax.vmap(lambda m, j: view_area(vertices, m, focal, faces, width, height, ss, j, budget))(
             w2c, jitter)
         return area, needed
 
-    return jax.jit(fn)
+    return _stored(fn, "render", width, height, ss, budget)
 
 
 @lru_cache(maxsize=64)
-def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int]):
-    """jit(vertices, faces, classes, w2c, focal, jitter) -> (pixel areas (n, H, W), the class's
+def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int]) -> StoredProgram:
+    """(vertices, faces, classes, w2c, focal, jitter) -> (pixel areas (n, H, W), the class's
     visible areas (n, H, W), spans and fragments needed per view (n, 2))."""
 
     def fn(vertices, faces, classes, w2c, focal, jitter):
@@ -600,18 +601,33 @@ def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int])
             vertices, m, focal, faces, classes, width, height, ss, j, budgets))(w2c, jitter)
         return area, class_area, needed
 
-    return jax.jit(fn)
+    return _stored(fn, "class_render", width, height, ss, budgets)
 
 
 @lru_cache(maxsize=64)
 def _loss_fn(vertex_fn: Callable, width: int, height: int, ss: int, budget: int, batched: bool = False):
-    """jit(z, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed per view);
-    the faces are an argument, not a constant (XLA would fold it into the program at every
-    compilation). ``batched``: over a leading axis of ``z`` and ``jitter`` (individuals of one
-    topology)."""
+    """jit(z, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed per view):
+    the generator's vertices and pullback around :func:`_silhouette_loss` in one program. The faces
+    are an argument, not a constant (XLA would fold it into the program at every compilation).
+    ``batched``: over a leading axis of ``z`` and ``jitter`` (individuals of one topology)."""
+    render = _silhouette_loss(width, height, ss, budget, batched)
+    vertices_of = jax.vmap(vertex_fn) if batched else vertex_fn
 
-    def surrogate(z, faces, targets, w2c, focal, jitter):
-        vertices = vertex_fn(z).reshape(-1, 3)
+    def fn(z, faces, targets, w2c, focal, jitter):
+        vertices, pullback = jax.vjp(vertices_of, z)
+        loss, grad, needed = render.inline(vertices, faces, targets, w2c, focal, jitter)
+        return loss, pullback(grad)[0], needed
+
+    return jax.jit(fn)
+
+
+@lru_cache(maxsize=64)
+def _silhouette_loss(width: int, height: int, ss: int, budget: int, batched: bool) -> StoredProgram:
+    """(flattened vertices, faces, targets, w2c, focal, jitter) -> (loss, d loss / d vertices,
+    spans needed per view), over a leading axis of vertices and jitter when ``batched``."""
+
+    def surrogate(vertices, faces, targets, w2c, focal, jitter):
+        vertices = vertices.reshape(-1, 3)
         n_views = len(targets)
 
         def view(m, target, j):
@@ -622,23 +638,24 @@ def _loss_fn(vertex_fn: Callable, width: int, height: int, ss: int, budget: int,
         loss, sur, needed = jax.vmap(view)(w2c, targets, jitter)
         return jnp.sum(sur), (jnp.sum(loss), needed)
 
-    def fn(z, faces, targets, w2c, focal, jitter):
-        (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(z, faces, targets, w2c, focal, jitter)
+    def fn(vertices, faces, targets, w2c, focal, jitter):
+        (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(vertices, faces, targets, w2c,
+                                                                                 focal, jitter)
         return loss, grad, needed
 
     if batched and jax.default_backend() == "cpu":  # one after another in one program: XLA's CPU
         single = fn  # scatters with a batch dimension cost more than the individuals one by one
 
-        def fn(z, faces, targets, w2c, focal, jitter):
-            return jax.lax.map(lambda a: single(a[0], faces, targets, w2c, focal, a[1]), (z, jitter))
+        def fn(vertices, faces, targets, w2c, focal, jitter):
+            return jax.lax.map(lambda a: single(a[0], faces, targets, w2c, focal, a[1]), (vertices, jitter))
     elif batched:
         fn = jax.vmap(fn, in_axes=(0, None, None, None, None, 0))
-    return jax.jit(fn)
+    return _stored(fn, "silhouette_loss", width, height, ss, budget, batched)
 
 
 @lru_cache(maxsize=64)
-def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple):
-    """jit(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
+def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple) -> StoredProgram:
+    """(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
     d vertices, spans and fragments needed per view (n, 2)) with the class-mask term ``highlight``
     (weight, pyramid levels, loss). The generator is not in the program (a building's takes longer
     to compile than the renderer, and each resolution and budget is a program of its own): its
@@ -666,7 +683,12 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
         (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(*args)
         return loss, grad, needed
 
-    return jax.jit(fn)
+    return _stored(fn, "class_loss", width, height, ss, budgets, highlight)
+
+
+def _stored(fn: Callable, *name) -> StoredProgram:
+    """``fn``, a program of this file's renderer with the settings ``name``, kept between processes."""
+    return StoredProgram(" ".join(map(str, name)), fn, (__file__,))
 
 
 @lru_cache(maxsize=64)
