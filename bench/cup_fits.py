@@ -6,7 +6,9 @@ program), with and without the memetic stage's batched rounds (``DiffProfile.mem
         [--seeds 1 2] [--batch off on] [--out results/bench/cup_fits]
 
 Each fit runs in this process with JAX's persistent compilation cache as configured (on by
-default: run a seed once first to time warm fits, as the workflow's next seed is). Writes each
+default: run a seed once first to time warm fits, as the workflow's next seed is). Later fits in
+one process reuse its traced programs; to time what a workflow job pays (a new process loading
+the stored programs, ``ipm.render.programs``), run it once per fit. Writes each
 fit's folder (``ipm.methods.diff.write_result``: trace.csv, params.json) under ``--out`` and one
 JSON line per fit to ``--out``/fits.jsonl; prints the same lines. A trace row's time is its
 evaluation's; a row more than ``--event-ms`` after the one before counts as an event.

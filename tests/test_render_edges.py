@@ -299,3 +299,21 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
         for a, b in zip(traced, numbers(every=False)):
             np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
     assert len(list(folder.glob("*.jaxexport"))) == 4
+
+
+def test_program_folder_keeps_the_most_recently_used(tmp_path):
+    """Beyond ``keep`` stored programs the least recently used (oldest modification time: a load
+    touches its file) are removed; other files in the folder are left alone."""
+    import os
+
+    from ipm.render import programs
+
+    for i in range(5):
+        p = tmp_path / f"{i}.jaxexport"
+        p.write_bytes(b"x")
+        os.utime(p, (1000 + i, 1000 + [3, 0, 4, 1, 2][i]))
+    (tmp_path / "note.txt").write_text("kept")
+    programs._prune(tmp_path, keep=3)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["0.jaxexport", "2.jaxexport", "4.jaxexport", "note.txt"]
+    programs._prune(tmp_path, keep=3)
+    assert len(list(tmp_path.glob("*.jaxexport"))) == 3

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable
 
 import jax
+import jaxlib
 import numpy as np
 
 from ipm.io.atomic import atomic_path
@@ -72,8 +73,8 @@ class StoredProgram:
 
 @lru_cache(maxsize=8)
 def _source_hash(sources: tuple[str, ...]) -> str:
-    """The hash of ``sources`` and this file (what a stored program's code is)."""
-    h = hashlib.sha256()
+    """The hash of ``sources``, this file and jaxlib's version (what a stored program's code is)."""
+    h = hashlib.sha256(jaxlib.__version__.encode())
     for source in (*sources, __file__):
         h.update(Path(source).read_bytes())
     return h.hexdigest()
