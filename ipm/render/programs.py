@@ -89,10 +89,11 @@ def _load_or_export(path: Path, fn: Callable, avals):
     if path.exists():
         try:
             program = export.deserialize(bytearray(path.read_bytes()))
-            os.utime(path)  # recently used
-            return program
         except Exception:  # noqa: BLE001 - any unreadable file is exported again
-            pass
+            program = None
+        if program is not None:
+            _touch(path)
+            return program
     shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in avals]
     program = export.export(jax.jit(fn))(*shapes)
     try:
@@ -109,13 +110,23 @@ def _prune(folder: Path, keep: int = KEEP) -> None:
     files = list(folder.glob("*.jaxexport"))
     if len(files) <= keep:
         return
+
     def used(p: Path) -> float:
         try:
             return p.stat().st_mtime
-        except OSError:
+        except OSError:  # removed by another process meanwhile
             return 0.0
+
     for old in sorted(files, key=used)[:-keep]:
         try:
             old.unlink()
-        except OSError:  # removed by another process meanwhile
+        except OSError:
             pass
+
+
+def _touch(path: Path) -> None:
+    """Mark ``path`` used now (the pruning's order); a read-only folder is left as it is."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
