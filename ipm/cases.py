@@ -59,6 +59,10 @@ SAMPLED = (
     ("building_d10", "buildings", 5011, {}, "dev"),
     ("building_d11", "buildings", 5012, {}, "dev"),
     ("building_d12", "buildings", 5013, {}, "dev"),
+    ("building_d13", "buildings", 5014, {}, "dev"),
+    ("building_d14", "buildings", 5015, {}, "dev"),
+    ("building_d15", "buildings", 5017, {}, "dev"),  # 5016 drew a building 2.24 tall (cases: at most 2)
+    ("building_d16", "buildings", 5018, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )
