@@ -39,8 +39,9 @@ def program_folder() -> Path | None:
 
 class StoredProgram:
     """``fn(*arrays)`` traced once per argument shapes and, where :func:`program_folder` is set,
-    exported to disk under a key of ``sources`` (the files whose code it runs), JAX's and numpy's
-    versions, the backend, ``name`` and the shapes; later processes load it instead of tracing.
+    exported to disk under a key of ``sources`` (the files whose code it runs), JAX's, jaxlib's and
+    numpy's versions, the backend, x64, ``name`` and the shapes; later processes load it instead of
+    tracing.
     ``fn`` must close over nothing but what ``name`` spells out (sizes, budgets, settings).
 
     Call it eagerly (jitted) or from inside another function being traced (:meth:`inline`)."""
