@@ -63,6 +63,12 @@ SAMPLED = (
     ("building_d14", "buildings", 5015, {}, "dev"),
     ("building_d15", "buildings", 5017, {}, "dev"),  # 5016 drew a building 2.24 tall (cases: at most 2)
     ("building_d16", "buildings", 5018, {}, "dev"),
+    ("building_d17", "buildings", 5019, {}, "dev"),
+    ("building_d18", "buildings", 5020, {}, "dev"),
+    ("building_d19", "buildings", 5021, {}, "dev"),
+    ("building_d20", "buildings", 5022, {}, "dev"),
+    ("building_d21", "buildings", 5023, {}, "dev"),
+    ("building_d22", "buildings", 5024, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
 )
