@@ -21,7 +21,7 @@ from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
 from ipm.methods.diff import (Objective, class_masks, decide, neighbours, polish, read_counts_into, sight_axis,
-                              sweep_sight, turned)
+                              sweep_place, sweep_sight, turned)
 from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -390,6 +390,40 @@ def test_sight_sweep_stretches_the_side_the_view_looks_along():
     assert sweep_sight(cups, front, cup, profile, still, score) is cup
 
 
+def test_place_sweep_puts_the_chimney_where_the_loss_is_lowest():
+    """Each of the generator's placements is tried (a chimney put on a roof that had none, at
+    nine places); the lowest score wins when it is lower than the fit as it stands by more than
+    the margin, else the fit is kept; without steps or placements (a cup) nothing changes."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    ix, n = gen.spec.index, problem.n_shape
+    x = gen.presets["house"].copy()
+    x[ix["chimney"]] = 0
+    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
+    assert len(gen.placements) == 9
+    target = gen.placements[2]  # chimney_x -0.3, chimney_z 0.3
+
+    def placed(v):
+        values = gen.spec.from_unit(v[:n])
+        return all(abs(values[ix[k]] - target[k]) < 1e-6 for k in target)
+
+    def score(v, seed=None):  # a placement's loss 30 % under the fit's, the target's 60 %
+        chimney = gen.spec.from_unit(v[:n])[ix["chimney"]] == 1
+        return 1.0 - 0.3 * chimney - 0.3 * placed(v), np.zeros_like(v)
+
+    still = lambda v, seed=None: (0.0, np.zeros_like(v))  # noqa: E731: the steps move nothing
+    best = sweep_place(problem, z, get_profile("default", place_steps=2), still, score)
+    assert placed(best) and np.array_equal(best[n:], z[n:])
+    others = np.delete(np.arange(n), [ix[k] for k in target])
+    assert np.allclose(best[others], z[others])  # only the part's own parameters move
+    kept = sweep_place(problem, z, get_profile("default", place_steps=2, place_margin=0.7), still, score)
+    assert np.array_equal(kept, z)
+    assert sweep_place(problem, z, get_profile("default", place_steps=0), still, score) is z
+    cups = Problem(get_generator("dishes"), np.zeros(3), 1.0)
+    cup = cups.initial_z(np.full(cups.n_shape, 0.5), 0.0)
+    assert sweep_place(cups, cup, get_profile("default"), still, score) is cup
+
+
 def test_seen_counts_follow_the_facades_the_camera_faces():
     gen = get_generator("buildings")
     front = gen.seen_counts(0.0, [0.0, 0.3, 1.0])
@@ -511,14 +545,18 @@ def test_counts_scored_are_those_the_input_window_mask_shows(tmp_path_factory, m
 
 
 def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_views):
-    """Reconstruct (small budget), then ``ipm generate`` from its params.json at every level of
-    detail: parts by name, normals, and no error or warning from the Khronos validator."""
+    """Reconstruct (small budget, the line-of-sight and chimney sweeps on), then ``ipm generate``
+    from its params.json at every level of detail: parts by name, normals, and no error or
+    warning from the Khronos validator."""
     out = tmp_path / "rec"
     info = METHODS["diff"](building_views / "transforms.json", out, generator="buildings", profile="smoke",
                            seed=0, progress=False, population=4, ga_iterations=2, adam_per_iteration=8,
-                           window_loss="dice", window_weight=0.01)
+                           window_loss="dice", window_weight=0.01, sight_steps=1, place_steps=1)
     trace = pd.read_csv(out / "trace.csv")
-    assert {"memetic", "polish", "refine"} <= set(trace["stage"])
+    assert {"memetic", "polish", "sight", "place", "refine"} <= set(trace["stage"])
+    place = trace[trace["stage"] == "place"]
+    scored = place[place["res"] == place["res"].max()]  # the scores, at the last stage's size (steps: the one before)
+    assert len(scored) == 1 + len(get_generator("buildings").placements)  # the fit as it stands and each place
     gen = get_generator("buildings")
     assert info["generator"] == "buildings" and set(info["params"]) == set(gen.spec.names)
     nodes = [n["name"] for n in _glb_json(out / "mesh.glb")["nodes"] if "mesh" in n]

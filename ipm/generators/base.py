@@ -163,6 +163,11 @@ class Generator:
     and depth), each independent of the other: from one view the extent along the line of sight
     is poorly seen, so the differentiable path also tries it stretched and shrunk
     (:func:`ipm.methods.diff.sweep_sight`). None: no such pair (a round object)."""
+    placements: tuple[dict[str, float], ...] = ()
+    """Starting values for a small part, each a complete place for it (buildings: the chimney,
+    switched on, mid-sized, at nine places on the roof): the part covers a few hundred pixels
+    and its edges give no gradient where it is not drawn, so the differentiable path also tries
+    it at each (:func:`ipm.methods.diff.sweep_place`). (): none."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""

@@ -226,6 +226,8 @@ class Buildings(Generator):
     min_fit_lod = 2
     marker = ("door", "windows_front")
     categorical = ("roof_type",)
+    placements = tuple({"chimney": 1, "chimney_x": cx, "chimney_z": cz, "chimney_size": 0.1, "chimney_height": 0.2}
+                       for cx in (-0.3, 0.0, 0.3) for cz in (-0.3, 0.0, 0.3))
     footprint = ("width", "depth")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}

@@ -341,6 +341,19 @@ def sight_evaluations(problem: Problem, profile: DiffProfile) -> int:
     return sweeps_sight(problem, profile) * (len(profile.sight_factors) + 1) * profile.sight_steps
 
 
+def _race(problem: Problem, steps_objective, z: np.ndarray, name: str, starts: list[tuple[str, np.ndarray]],
+          steps: int, margin: float, profile: DiffProfile, score, on_eval, record) -> np.ndarray:
+    """``z`` (recorded as ``name``) and each of ``starts`` (name, point) given ``steps`` Adam steps
+    under ``steps_objective`` and compared by ``score``: the lowest start replaces ``z`` only if
+    its loss is lower than ``z``'s by more than ``margin`` (a fraction). How the sweeps try starts
+    the fit would not reach by itself."""
+    kept = _tried(problem, steps_objective, z, name, steps, profile, score, on_eval, record)
+    tried = [_tried(problem, steps_objective, alt, alt_name, steps, profile, score, on_eval, record)
+             for alt_name, alt in starts]
+    best = min(tried, key=lambda start: start[1], default=kept)
+    return best[0] if best[1] < kept[1] * (1 - margin) else kept[0]
+
+
 def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProfile, steps_objective,
                 score_objective, on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
     """The extent along the first view's line of sight tried at several values: ``z`` and ``z``
@@ -355,10 +368,8 @@ def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProf
         return z
     (i, away), spec, n = sight_axis(problem, views, z), problem.spec, problem.n_shape
     t = n + POSE_NAMES.index("dx")  # the translation genes dx, dy, dz
-    score = _scorer(score_objective, (10_007, 10_008))
     x = spec.from_unit(z[:n])
-    kept = _tried(problem, steps_objective, z, "sight x1", profile.sight_steps, profile, score, on_eval, record)
-    tried = []
+    starts = []
     for factor in profile.sight_factors:
         alt_x = x.copy()
         alt_x[i] *= factor
@@ -366,10 +377,43 @@ def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProf
         alt = z.copy()
         alt[:n] = spec.to_unit(alt_x)
         alt[t:t + 3] += away * (alt_x[i] - x[i]) / 2 / problem.anchor_s
-        tried.append(_tried(problem, steps_objective, problem.clip(alt), f"sight x{factor:g}",
-                            profile.sight_steps, profile, score, on_eval, record))
-    best = min(tried, key=lambda start: start[1], default=kept)
-    return best[0] if best[1] < kept[1] * (1 - profile.sight_margin) else kept[0]
+        starts.append((f"sight x{factor:g}", problem.clip(alt)))
+    return _race(problem, steps_objective, z, "sight x1", starts, profile.sight_steps, profile.sight_margin, profile,
+                 _scorer(score_objective, (10_007, 10_008)), on_eval, record)
+
+
+def sweeps_place(problem: Problem, profile: DiffProfile) -> bool:
+    """Whether :func:`sweep_place` runs: a generator with ``placements`` and steps in the profile."""
+    return bool(problem.generator.placements) and profile.place_steps > 0
+
+
+def place_evaluations(problem: Problem, profile: DiffProfile) -> int:
+    """Adam steps :func:`sweep_place` spends (progress bar)."""
+    return sweeps_place(problem, profile) * (len(problem.generator.placements) + 1) * profile.place_steps
+
+
+def sweep_place(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objective, score_objective,
+                on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """A small part put in at each of the generator's :attr:`~ipm.generators.base.Generator.placements`
+    (a building's chimney at nine places on the roof): ``z`` and ``z`` with each placement's
+    values, each given ``place_steps`` Adam steps under ``steps_objective`` and compared under
+    ``score_objective`` (same render seeds); the lowest loss wins if it is lower than ``z``'s by
+    more than ``place_margin``. Such a part covers a few hundred pixels, and where it is not
+    drawn its edges give no gradient, so a fit keeps it wherever the memetic stage left it (or
+    leaves it out)."""
+    if not sweeps_place(problem, profile):
+        return z
+    spec, n = problem.spec, problem.n_shape
+    x = spec.from_unit(z[:n])
+    starts = []
+    for values in problem.generator.placements:
+        alt_x = x.copy()
+        alt_x[[spec.index[k] for k in values]] = list(values.values())
+        alt = z.copy()
+        alt[:n] = spec.to_unit(spec.clip(alt_x))
+        starts.append(("place " + " ".join(f"{k}={v:g}" for k, v in values.items()), problem.clip(alt)))
+    return _race(problem, steps_objective, z, "place kept", starts, profile.place_steps, profile.place_margin, profile,
+                 _scorer(score_objective, (10_015, 10_016)), on_eval, record)
 
 
 def sweeps_focal(problem: Problem, profile: DiffProfile) -> bool:
@@ -540,6 +584,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
              + sum(decide_evaluations(int(problem.spec.levels[problem.spec.index[c]]) * (1 + turns), profile)
                    for c in problem.generator.categorical)
              + sight_evaluations(problem, profile)
+             + place_evaluations(problem, profile)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
              + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
@@ -601,6 +646,9 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             state["stage"] = "sight"
             zs = [sweep_sight(problem, views, z, profile, previous, objective, on_eval, recorder("sight", res))
                   for z in zs]
+        if stage == len(profile.refine_res) - 1 and sweeps_place(problem, profile):
+            state["stage"] = "place"
+            zs = [sweep_place(problem, z, profile, previous, objective, on_eval, recorder("place", res)) for z in zs]
         if stage == len(profile.refine_res) - 1 and sweeps_focal(problem, profile):
             state["stage"] = "focal"
             zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
