@@ -129,7 +129,7 @@ class DiffProfile:
     0.002); building_ext (out of family, seeds 0-7) 0.784 -> 0.785 (no place won)."""
     place_margin: float = 0.4
     """A placement replaces the part as it stands only with a loss lower by more than this
-    fraction. Where the memetic stage left out a chimney the view shows, the right place removes
+    fraction. Where the memetic stage left a chimney the view shows out, or as a stub elsewhere, the right place removes
     half of what is left of the loss (building_d4, both seeds: 53-54 %; IoU 0.96 -> 0.98); a
     chimney at a place where the view shows none, or one moved along the line of sight, lowers it
     by a third or less while the 64-view IoU falls (dev, 40 steps from the landed fits: building_d15
