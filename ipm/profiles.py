@@ -129,12 +129,13 @@ class DiffProfile:
     0.002); building_ext (out of family, seeds 0-7) 0.784 -> 0.785 (no place won)."""
     place_margin: float = 0.4
     """A placement replaces the part as it stands only with a loss lower by more than this
-    fraction. Where the memetic stage left a chimney the view shows out, or as a stub elsewhere, the right place removes
-    half of what is left of the loss (building_d4, both seeds: 53-54 %; IoU 0.96 -> 0.98); a
-    chimney at a place where the view shows none, or one moved along the line of sight, lowers it
-    by a third or less while the 64-view IoU falls (dev, 40 steps from the landed fits: building_d15
-    32 %, building_d12 13 % and 8 %, building_d2 6 %: IoU 0.002-0.007 lower), since it patches
-    another part's error or puts the chimney at a depth one view does not show. Chosen on dev."""
+    fraction. Where the memetic stage left a chimney the view shows out, or as a stub elsewhere,
+    the right place removes half of what is left of the loss (building_d4, both seeds: 53-54 %;
+    IoU 0.96 -> 0.98); a chimney at a place where the view shows none, or one moved along the
+    line of sight, lowers it by a third or less while the 64-view IoU falls (dev, 40 steps from the
+    landed fits: building_d15 32 %, building_d12 13 % and 8 %, building_d2 6 %: IoU 0.002-0.007
+    lower), since it patches another part's error or puts the chimney at a depth one view does not
+    show. Chosen on dev."""
     focal_sweep: int = 0
     """For a camera whose field of view is unknown (``ipm.photo``): before the last refinement
     stage, the focal gene is held at the estimate's and at this many points on either side,

@@ -553,11 +553,11 @@ def test_building_reconstruction_regenerates_at_every_level(tmp_path, building_v
                            seed=0, progress=False, population=4, ga_iterations=2, adam_per_iteration=8,
                            window_loss="dice", window_weight=0.01, sight_steps=1, place_steps=1)
     trace = pd.read_csv(out / "trace.csv")
+    gen = get_generator("buildings")
     assert {"memetic", "polish", "sight", "place", "refine"} <= set(trace["stage"])
     place = trace[trace["stage"] == "place"]
     scored = place[place["res"] == place["res"].max()]  # the scores, at the last stage's size (steps: the one before)
-    assert len(scored) == 1 + len(get_generator("buildings").placements)  # the fit as it stands and each place
-    gen = get_generator("buildings")
+    assert len(scored) == 1 + len(gen.placements)  # the fit as it stands and each place
     assert info["generator"] == "buildings" and set(info["params"]) == set(gen.spec.names)
     nodes = [n["name"] for n in _glb_json(out / "mesh.glb")["nodes"] if "mesh" in n]
     assert {"walls", "roof"} <= set(nodes)
