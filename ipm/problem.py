@@ -161,6 +161,31 @@ class Problem:
         (``Generator.yaw_symmetric``): its yaw is no part of its identity."""
         return self.generator.yaw_symmetric(self.spec.from_unit(z[: self.n_shape]))
 
+    def recentred(self, z: np.ndarray) -> np.ndarray:
+        """``z`` with its lengths and scale traded (every length times k, the scale over k: the
+        same mesh) so that the lengths the object uses sit, in log terms, midway between the
+        bounds they can reach together: one view fixes the product, not the share, and a fit that
+        drifted to a small scale leaves its lengths no room to grow (a chimney at its largest
+        size). ``z`` itself for a generator without the gauge (``Generator.ratios`` None)."""
+        gen, spec, n = self.generator, self.spec, self.n_shape
+        if gen.ratios is None:
+            return z
+        x = spec.from_unit(z[:n])
+        lengths = ~spec.discrete & ~np.isin(spec.names, gen.ratios)
+        used = lengths & gen.active(x) & (x > 0)
+        if not used.any():
+            return z
+        lo, hi = np.log(spec.lower[used].clip(1e-9) / x[used]).max(), np.log(spec.upper[used] / x[used]).min()
+        log_k = float(np.clip(0.5 * (lo + hi), lo, hi)) if lo <= hi else 0.0
+        ls = n + POSE_NAMES.index("log_scale")
+        log_k = float(np.clip(log_k, z[ls] - self.upper[ls], z[ls] - self.lower[ls]))
+        x = x.copy()
+        x[lengths] *= np.exp(log_k)
+        out = np.array(z, np.float64)
+        out[:n][lengths] = spec.to_unit(spec.clip(x))[lengths]
+        out[ls] -= log_k
+        return out
+
     def clip(self, z: np.ndarray) -> np.ndarray:
         """Project ``z`` into bounds; yaw is wrapped into [0, 2 pi)."""
         z = np.clip(np.asarray(z, np.float64), self.lower, self.upper)

@@ -73,6 +73,36 @@ def test_max_tilt_bounds_both_tilts():
         assert np.all(problem.clip(np.full(problem.dim, -3.0))[tilts] == -max_tilt)
 
 
+def test_recentring_keeps_the_mesh_and_frees_the_bounds():
+    gen = get_generator("buildings")
+    spec, problem = gen.spec, Problem(gen, np.array([0.1, 0.0, -0.2]), 1.3)
+    assert set(gen.ratios) <= {n for n, d in zip(spec.names, spec.discrete) if not d}
+    lengths = ~spec.discrete & ~np.isin(spec.names, gen.ratios)
+    scale = problem.n_shape + 6
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        # a fit that drifted to a small scale: its lengths grown until the first reaches its bound
+        x = gen.sample(rng)
+        used = lengths & gen.active(x)
+        grow = np.min(spec.upper[used] / x[used])
+        x[lengths] = np.minimum(x[lengths] * grow, spec.upper[lengths])
+        z = np.concatenate([spec.to_unit(x), [0.7, 0.0, 0.0, 0.05, 0.0, -0.1, -np.log(grow)]])
+        out = problem.recentred(z)
+        # the same mesh (the level the refinement stages fit; finer ones keep a few fixed
+        # millimetres, such as a pane's thickness) at a larger scale
+        np.testing.assert_allclose(problem.world_mesh(out, 1).vertices, problem.world_mesh(z, 1).vertices,
+                                   atol=1e-5)
+        assert out[scale] > z[scale] and np.array_equal(problem.key(out), problem.key(z))
+        # the used lengths now as far, in log terms, from their lower bounds as from their upper
+        y = spec.from_unit(out[: problem.n_shape])
+        room_down = np.min(np.log(y[used] / spec.lower[used].clip(1e-9)))
+        room_up = np.min(np.log(spec.upper[used] / y[used]))
+        assert room_up > 0.0 and room_down == pytest.approx(room_up, abs=1e-6)
+    dishes = Problem(get_generator("dishes"), np.zeros(3), 1.0)  # no such gauge: left as it is
+    z = np.full(dishes.dim, 0.3)
+    assert np.array_equal(dishes.recentred(z), z)
+
+
 @pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
 def test_reconstruction_is_deterministic(tmp_path, tiny_case, renderer):
     """Same seed, same answer, bit for bit, on one thread (several threads reorder float sums)."""

@@ -168,6 +168,11 @@ class Generator:
     switched on, mid-sized, at nine places on the roof): the part covers a few hundred pixels
     and its edges give no gradient where it is not drawn, so the differentiable path also tries
     it at each (:func:`ipm.methods.diff.sweep_place`). (): none."""
+    ratios: tuple[str, ...] | None = None
+    """The continuous parameters that are not lengths (fractions, scale factors): every other
+    continuous one is a length, so lengths times k at scale 1 / k make the same mesh, a gauge
+    the differentiable path re-centres (:meth:`ipm.problem.Problem.recentred`). None: the
+    generator has no such gauge (a length that is fixed, such as a normalised height)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""

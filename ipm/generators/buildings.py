@@ -229,6 +229,7 @@ class Buildings(Generator):
     placements = tuple({"chimney": 1, "chimney_x": cx, "chimney_z": cz, "chimney_size": 0.1, "chimney_height": 0.2}
                        for cx in (-0.3, 0.0, 0.3) for cz in (-0.3, 0.0, 0.3))
     footprint = ("width", "depth")
+    ratios = ("side_window_scale", "ground_window_scale", "hip_ratio", "balcony_width", "chimney_x", "chimney_z")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}
     presets = {}  # filled below from named edits of the defaults

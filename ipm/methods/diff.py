@@ -637,6 +637,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     checkpoint(zs[0])
     for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
+        if profile.recentre:
+            zs = [problem.recentred(z) for z in zs]
         if stage == len(profile.refine_res) - 1 and profile.decide_steps > 0 and problem.generator.categorical:
             state["stage"] = "decide"
             recount = (lambda z: read_counts_into(problem, views, z)[0] if reads else z) if turns else None
