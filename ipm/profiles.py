@@ -144,7 +144,8 @@ class DiffProfile:
     height, overhang and cornice at their upper bounds, the depth 12 % short; re-centred 0.932
     against 0.890). Dev, one view, seed 0: in family (building_1, d1-d22) 0.973 -> 0.975 (paired
     +0.002, standard error 0.002; 5 up and 2 down by more than 0.002), building_ext (seeds 0-3)
-    0.781 -> 0.796. Most fits have lengths at both bounds and are left as they are."""
+    0.781 -> 0.796; seed 1 of d18 0.931 -> 0.911, where no length was at a bound. Most fits have
+    lengths at both bounds and are left as they are."""
     focal_sweep: int = 0
     """For a camera whose field of view is unknown (``ipm.photo``): before the last refinement
     stage, the focal gene is held at the estimate's and at this many points on either side,
