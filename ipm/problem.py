@@ -176,10 +176,8 @@ class Problem:
         if not used.any():
             return z
         lo, hi = np.log(spec.lower[used].clip(1e-9) / x[used]).max(), np.log(spec.upper[used] / x[used]).min()
-        log_k = float(np.clip(0.5 * (lo + hi), lo, hi)) if lo <= hi else 0.0
         ls = n + POSE_NAMES.index("log_scale")
-        log_k = float(np.clip(log_k, z[ls] - self.upper[ls], z[ls] - self.lower[ls]))
-        x = x.copy()
+        log_k = float(np.clip(0.5 * (lo + hi) if lo <= hi else 0.0, z[ls] - self.upper[ls], z[ls] - self.lower[ls]))
         x[lengths] *= np.exp(log_k)
         out = np.array(z, np.float64)
         out[:n][lengths] = spec.to_unit(spec.clip(x))[lengths]
