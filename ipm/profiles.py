@@ -215,6 +215,11 @@ class DiffProfile:
     window_weight: float = 1.0
     """Weight of the class-mask term beside the silhouette (the generator's ``mask_class``:
     buildings' windows; used when the views have semantic images); 0 = the silhouette alone."""
+    extra_class_weight: float = 0.0
+    """Weight of the class-mask term of each of the generator's ``extra_mask_classes`` (buildings:
+    roof; the same pyramid and loss as the windows'); 0 = none. Off: at 1 the dev buildings in
+    family went 0.975 -> 0.974 (building_d17's low gable found, 0.955 -> 0.981) and building_ext,
+    two row houses the generator cannot make, 0.796 -> 0.594 (seeds 0-3; 0.741 at 0.1), README."""
     window_levels: int = 4
     """Levels of the 2 x 2 mean pyramid over which the class-mask term is averaged (1: the
     full-resolution MSE alone)."""

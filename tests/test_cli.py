@@ -93,6 +93,9 @@ def test_methods_refuse_generators_and_stages_they_cannot_use(tmp_path, tiny_cas
     res = ipm("reconstruct", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"),
               "--window-weight", "-1")
     assert "--window-weight: needs 0 to 100, got -1.0" in _one_line_error(res)
+    res = ipm("reconstruct", "--generator", "buildings", "--views", views, "--out", str(tmp_path / "r"),
+              "--extra-class-weight", "nan")
+    assert "--extra-class-weight: needs 0 to 100, got nan" in _one_line_error(res)
     res = ipm("reconstruct", "--method", "ga", "--generator", "dishes", "--views", views, "--out", str(tmp_path / "r"),
               "--renderer", "jax")
     assert "--renderer applies to the diff path only" in _one_line_error(res)

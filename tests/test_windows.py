@@ -122,10 +122,17 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
     with_windows = Objective(problem, views, 48, 2, get_profile("smoke"))
     fallback = Objective(problem, plain, 48, 2, get_profile("smoke"))
     off = Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0))
+    roofs = Objective(problem, views, 48, 2, get_profile("smoke", extra_class_weight=1.0))
+    roofs_alone = Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0, extra_class_weight=1.0))
     assert with_windows.class_targets is not None and fallback.class_targets is None and off.class_targets is None
-    loss_w, loss_f, loss_off = (o(z, seed=5)[0] for o in (with_windows, fallback, off))
+    assert with_windows.class_labels == (BUILDING_LABELS["window"],) and with_windows.class_targets.shape[:2] == (1, 1)
+    assert roofs.class_labels == (BUILDING_LABELS["window"], BUILDING_LABELS["roof"])
+    assert roofs.class_targets.shape[:2] == (1, 2) and roofs_alone.class_labels == (BUILDING_LABELS["roof"],)
+    assert Objective(problem, plain, 48, 2, get_profile("smoke", extra_class_weight=1.0)).class_targets is None
+    loss_w, loss_f, loss_off, loss_r = (o(z, seed=5)[0] for o in (with_windows, fallback, off, roofs))
     assert loss_f == pytest.approx(loss_off, rel=1e-6)
     assert loss_w > loss_f  # the villa's windows are not building_1's
+    assert loss_r > loss_w  # nor its hip roof building_1's gable
     with pytest.raises(UserError, match="unknown diff setting"):
         get_profile("smoke", window_wieght=1.0)
     with pytest.raises(UserError, match="unknown window_loss 'l1'"):
@@ -135,7 +142,7 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
 def test_renderer_choice_with_window_masks(building_views):
     """``auto`` takes the JAX renderer with window masks too (a z-buffer and edge sampling,
     ``ipm.render.edges``), whose loss equals Mitsuba's within render noise, with and without the
-    window term; ``mitsuba`` stays selectable."""
+    window term and with the roof's; ``mitsuba`` stays selectable."""
     from ipm.render.edges import EdgeRenderer
     from ipm.render.silhouette import SilhouetteRenderer
 
@@ -143,27 +150,29 @@ def test_renderer_choice_with_window_masks(building_views):
     views = load_views(building_views / "transforms.json")
     problem = Problem(gen, *estimate_anchor(views))
     z = problem.initial_z(gen.spec.to_unit(gen.presets["villa"]), 0.5)
-    for window_weight in (1.0, 0.0):
-        assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", window_weight=window_weight)).renderer,
-                          EdgeRenderer)
-        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, window_weight=window_weight, spp=16))
+    for window_weight, roof_weight in ((1.0, 0.0), (0.0, 0.0), (1.0, 1.0)):
+        weights = dict(window_weight=window_weight, extra_class_weight=roof_weight)
+        assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", **weights)).renderer, EdgeRenderer)
+        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, spp=16, **weights))
                 for r in ("jax", "mitsuba")]
         assert isinstance(pair[0].renderer, EdgeRenderer) and isinstance(pair[1].renderer, SilhouetteRenderer)
         losses = [np.mean([o(z, seed=s)[0] for s in range(4)]) for o in pair]
         assert losses[0] == pytest.approx(losses[1], rel=0.1)
 
 
-@pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
-def test_one_scene_serves_every_topology(building_views, renderer):
+@pytest.mark.parametrize("renderer,roof_weight", [("mitsuba", 0.0), ("jax", 0.0), ("mitsuba", 1.0), ("jax", 1.0)])
+def test_one_scene_serves_every_topology(building_views, renderer, roof_weight):
     """Buildings render every face of the level with the absent solids collapsed to a point: the
-    loss and gradient equal those of the topology's own faces, and one Mitsuba scene (one set of
-    compiled kernels) serves the house, the villa and the tower."""
+    loss and gradient equal those of the topology's own faces (split by class: the windows, and
+    with a roof term the roof), and one Mitsuba scene (one set of compiled kernels) serves the
+    house, the villa and the tower."""
     from ipm.render.edges import EdgeRenderer
 
     gen = get_generator("buildings")
     views = load_views(building_views / "transforms.json")
     problem = Problem(gen, *estimate_anchor(views))
-    obj = Objective(problem, views, 48, 2, get_profile("smoke", spp=8, renderer=renderer))
+    obj = Objective(problem, views, 48, 2, get_profile("smoke", spp=8, renderer=renderer,
+                                                   extra_class_weight=roof_weight))
     zs = [problem.initial_z(gen.spec.to_unit(gen.presets[name]), 0.5) for name in ("house", "villa", "tower")]
     assert len({problem.key(z) for z in zs}) == 3
     for z in zs:
@@ -172,10 +181,14 @@ def test_one_scene_serves_every_topology(building_views, renderer):
         assert len(obj.renderer._scenes) == 1
     key = problem.key(zs[-1])
     topo = gen.topology(key, 2)
-    highlight = np.asarray(gen.part_semantic)[topo.labels] == BUILDING_LABELS["window"]
+    label = np.asarray(gen.part_semantic)[topo.labels]
+    classes = ["window"] + ["roof"] * (roof_weight > 0)
+    assert obj.class_labels == tuple(BUILDING_LABELS[c] for c in classes)
+    inside = [label == BUILDING_LABELS[c] for c in classes]
     own = (SilhouetteRenderer if renderer == "mitsuba" else EdgeRenderer)(views.c2w, views.fov_x, 48,
                                                                          obj.targets.shape[1], 8)
-    loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1], [topo.faces[~highlight], topo.faces[highlight]],
+    loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1],
+                                   [topo.faces[~np.any(inside, 0)]] + [topo.faces[m] for m in inside],
                                    len(topo.uv), obj.targets, seed=3, highlight_targets=obj.class_targets,
                                    highlight_weight=obj.class_weight, highlight_levels=obj.class_levels,
                                    highlight_loss=obj.class_loss)

@@ -141,6 +141,10 @@ class Generator:
     mask_class: str | None = None
     """Semantic class whose mask the differentiable path matches beside the silhouette (buildings:
     window), weighted by the profile's ``window_weight``; None: silhouette only."""
+    extra_mask_classes: tuple[str, ...] = ()
+    """Further semantic classes whose masks the differentiable path matches too, weighted by the
+    profile's ``extra_class_weight`` (buildings: roof, which tells a low gable from a hip roof or
+    a flat one where the silhouettes nearly agree)."""
     min_fit_lod: int = 0
     """Lowest level of detail the differentiable path searches at (the first that has the
     ``mask_class`` parts: buildings' windows appear at level 2)."""

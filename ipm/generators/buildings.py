@@ -223,6 +223,7 @@ class Buildings(Generator):
     part_semantic = tuple(BUILDING_LABELS[c] for c in ("wall", "window", "wall", "roof", "door", "wall"))
     """Frames and balconies count as wall: a window mask is the glass."""
     mask_class = "window"
+    extra_mask_classes = ("roof",)
     min_fit_lod = 2
     marker = ("door", "windows_front")
     categorical = ("roof_type",)

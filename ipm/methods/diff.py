@@ -3,8 +3,9 @@
 Loss: mean over views of the pixel MSE between the rendered silhouette (``DiffProfile.renderer``)
 and the reference mask, plus the generator's smoothness prior; for a generator with a ``mask_class`` (buildings:
 windows) and views with semantic images, plus ``window_weight`` times the ``window_loss`` (MSE or Dice)
-between the rendered and the reference masks of that class over a mean pyramid (without semantic
-images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
+between the rendered and the reference masks of that class over a mean pyramid, and
+``extra_class_weight`` times the same for each of its ``extra_mask_classes`` (buildings: roof;
+without semantic images: the silhouette alone). Pose (yaw, tilts, translation, scale) is optimised with the shape
 (``ipm.problem``); the tilts only where the profile allows them. Stages: memetic search, the
 counts read off the class masks (:func:`read_counts_into`), discrete hill climb over the rest
 (:func:`polish`), coarse-to-fine Adam with the counts read again before each stage and every
@@ -68,11 +69,17 @@ class Objective:
         self.problem, self.lod, self.reg = problem, lod, profile.reg_weight
         self.targets = resize_masks(views.masks, width)
         h = self.targets.shape[1]
-        masks = class_masks(problem.generator, views) if profile.window_weight > 0 else None
         self.renderer = make_renderer(profile.renderer, views.c2w, views.fov_x, width, h, profile.spp,
                                       mitsuba_tuned=problem.fov_estimated is True)
-        self.class_targets = None if masks is None else resize_masks(masks[0], width)
-        self.class_label, self.class_weight = (None, 0.0) if masks is None else (masks[1], profile.window_weight)
+        gen, terms = problem.generator, []
+        for name, weight in [(gen.mask_class, profile.window_weight)] + [(c, profile.extra_class_weight)
+                                                                           for c in gen.extra_mask_classes]:
+            masks = class_masks(gen, views, name) if weight > 0 else None
+            if masks is not None and masks[1] in gen.part_semantic:
+                terms.append((resize_masks(masks[0], width), masks[1], weight))
+        self.class_targets = np.ascontiguousarray(np.stack([t[0] for t in terms], 1)) if terms else None
+        self.class_labels = tuple(t[1] for t in terms)
+        self.class_weight = tuple(t[2] for t in terms)
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
         self.calls = 0
         self._shared = None  # the shared-positions rendering, built on first use
@@ -81,19 +88,23 @@ class Objective:
         """(vertex_fn, face groups, V) to render ``key``'s topology: for a generator with shared
         positions the level's every face in each group and one vertex block per group (one scene,
         hence one set of compiled kernels, for all topologies: the same for every key); else the
-        topology's faces, split by the mask class when there is a class term."""
+        topology's faces, split by the mask classes when there are class terms (group k: the
+        parts of the k-th class, group 0: the others)."""
         gen = self.problem.generator
-        in_class = None if self.class_targets is None else np.asarray(gen.part_semantic) == self.class_label
+        part_class = np.zeros(len(gen.part_semantic), int)
+        for k, label in enumerate(self.class_labels, start=1):
+            part_class[np.asarray(gen.part_semantic) == label] = k
         if gen.shared_positions:
             if self._shared is None:
                 parts = np.arange(len(gen.part_names))
-                groups = (tuple(parts),) if in_class is None else (tuple(parts[~in_class]), tuple(parts[in_class]))
+                groups = tuple(tuple(parts[part_class == k]) for k in range(len(self.class_labels) + 1))
                 faces = gen.all_faces(self.lod)
                 self._shared = (self.problem.group_vertex_fn(self.lod, groups), [faces] * len(groups),
                                 int(faces.max()) + 1)
             return self._shared
         topo = gen.topology(key, self.lod)
-        faces = [topo.faces] if in_class is None else [topo.faces[~in_class[topo.labels]], topo.faces[in_class[topo.labels]]]
+        faces = [topo.faces] if not self.class_labels else [topo.faces[part_class[topo.labels] == k]
+                                                              for k in range(len(self.class_labels) + 1)]
         return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:

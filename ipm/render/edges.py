@@ -1,4 +1,4 @@
-"""Silhouettes (and a class mask) in JAX: scanline coverage and edge-sampling gradients (the paper's own renderer).
+"""Silhouettes (and class masks) in JAX: scanline coverage and edge-sampling gradients (the paper's own renderer).
 
 The paper's last section replaces Mitsuba by "our own simple implementation of differentiable
 renderer that uses edge sampling" for silhouettes. This is one, in pure JAX, so that the generator,
@@ -23,7 +23,8 @@ the camera, the coverage and the gradient are one ``jax.jit`` function of the pa
   whose gradient is the estimate. Exact in expectation for the area-coverage loss, not a blurred
   surrogate.
 
-- **A class mask** (a second face group: a building's windows, where visible): every covered
+- **Class masks** (further face groups, up to two: a building's windows and its roof, where
+  visible; one term per class, each the same as the one described here): every covered
   sample is a fragment at its triangle's plane's depth along the sample's ray, and the nearest
   triangle is the one seen (a z-buffer, :func:`visible_faces`). The class's boundary in the image
   is where the triangle seen changes class: at a span end whose triangle is the one seen inside
@@ -43,6 +44,7 @@ import numpy as np
 
 from ipm.errors import UserError
 from ipm.render.programs import StoredProgram
+from ipm.render.silhouette import group_count as _group_count, highlight_arrays
 
 NEAR = 1e-3
 """Vertices closer to the camera plane than this (scene units) are dropped with their triangles."""
@@ -304,12 +306,13 @@ def class_surrogate(xy, s: dict, owner, cls, class_grad, jitter, planes, focal: 
 
 
 def view_class_area(vertices, w2c, focal: float, faces, cls, width: int, height: int, ss: int, jitter,
-                    budgets: tuple[int, int], grad_fn=None):
-    """:func:`view_area` with a class: the covered area and the area of the class ``cls`` (F,) seen
-    (H, W) of one view (means of the row and the column pass), the spans and fragments needed (2,),
-    and given ``grad_fn(area, class_area) -> (d loss / d area, d loss / d class area)`` the
-    edge-sampling surrogate of both (:func:`scan_surrogate`, :func:`class_surrogate`). Triangles
-    of no area (a shared-positions generator's absent solids, collapsed to a point) are not drawn."""
+                    budgets: tuple[int, int], grad_fn=None, n_classes: int = 1):
+    """:func:`view_area` with classes: the covered area (H, W) and the area seen of each class
+    k = 1 .. ``n_classes`` (``cls`` (F,): each face's class, 0 for none) (n_classes, H, W) of one
+    view (means of the row and the column pass), the spans and fragments needed (2,), and given
+    ``grad_fn(area, class_areas) -> (d loss / d area, d loss / d class areas)`` the edge-sampling
+    surrogate of all (:func:`scan_surrogate`, :func:`class_surrogate` per class). Triangles of no
+    area (a shared-positions generator's absent solids, collapsed to a point) are not drawn."""
     span_budget, frag_budget = budgets
     cam = vertices @ w2c[:3, :3].T + w2c[:3, 3]
     xy, front = project(vertices, w2c, focal, width, height)
@@ -323,22 +326,25 @@ def view_class_area(vertices, w2c, focal: float, faces, cls, width: int, height:
                                           (True, xs[:, ::-1], jitter[height * ss:], height * ss)):
         s = spans(jax.lax.stop_gradient(coords), faces, face_ok, jit, size, span_budget)
         owner, frags = visible_faces(s, jit, planes, focal, width, height, ss, transposed, frag_budget)
-        in_class = (owner >= 0) & (cls[jnp.clip(owner, 0)] > 0)
-        passes.append((transposed, coords, jit, s, covered_samples(s, jit.shape[0], size), owner, in_class))
+        seen = jnp.where(owner >= 0, cls[jnp.clip(owner, 0)], 0.0)
+        passes.append((transposed, coords, jit, s, covered_samples(s, jit.shape[0], size), owner, seen))
         needed = jnp.maximum(needed, jnp.stack([s["needed"], frags]))
     area = 0.5 * (pixel_area(passes[0][4], ss) + pixel_area(passes[1][4], ss).T)
-    class_area = 0.5 * (pixel_area(passes[0][6], ss) + pixel_area(passes[1][6], ss).T)
+    classes = range(1, n_classes + 1)
+    class_area = jnp.stack([0.5 * (pixel_area(passes[0][6] == k, ss) + pixel_area(passes[1][6] == k, ss).T)
+                            for k in classes])
     if grad_fn is None:
         return area, class_area, needed, 0.0
     g, gc = grad_fn(jax.lax.stop_gradient(area), jax.lax.stop_gradient(class_area))
-    capacity = max(4 * (height + width) * ss, frag_budget // 16)  # candidate span ends of either term
+    capacity = max(4 * (height + width) * ss, frag_budget // 16)  # candidate span ends of any term
     sur = 0.0
-    for (transposed, coords, jit, s, cov, owner, _), grad, cgrad in zip(passes, (g, g.T), (gc, gc.T)):
-        part, count = scan_surrogate(coords, s, cov, grad, ss, capacity)
-        cpart, ccount = class_surrogate(coords, s, owner, cls, cgrad, jit, planes, focal, width, height, ss,
-                                        transposed, capacity)
-        sur = sur + part + cpart
-        most = jnp.maximum(count, ccount)
+    for (transposed, coords, jit, s, cov, owner, _), grad, cgrads in zip(passes, (g, g.T), (gc, gc.transpose(0, 2, 1))):
+        part, most = scan_surrogate(coords, s, cov, grad, ss, capacity)
+        sur = sur + part
+        for k, cgrad in zip(classes, cgrads):
+            cpart, ccount = class_surrogate(coords, s, owner, (cls == k).astype(jnp.float32), cgrad, jit, planes,
+                                            focal, width, height, ss, transposed, capacity)
+            sur, most = sur + cpart, jnp.maximum(most, ccount)
         needed = needed.at[1].max(jnp.where(most > capacity, 16 * most, 0))  # grow the fragment budget
     return area, class_area, needed, sur
 
@@ -363,9 +369,9 @@ def pyramid_loss(image, target, levels: int, kind: str = "mse"):
 
 class EdgeRenderer:
     """Silhouettes of one triangle mesh seen by a fixed set of cameras, in JAX, with edge-sampling
-    gradients: the same interface as ``ipm.render.silhouette.SilhouetteRenderer``, a second face
-    group (a building's windows) included: its mask where visible (a z-buffer per sample) and the
-    class term's gradient by edge sampling at the class's visible boundary.
+    gradients: the same interface as ``ipm.render.silhouette.SilhouetteRenderer``, further face
+    groups (a building's windows, its roof) included: each one's mask where visible (a z-buffer per
+    sample) and each class term's gradient by edge sampling at the class's visible boundary.
 
     Parameters
     ----------
@@ -375,7 +381,7 @@ class EdgeRenderer:
     spp : samples per pixel and scan direction (rounded to a square: 4 -> 2 x 2; rows and
         columns each take that many, so a pixel's value averages twice ``spp`` samples).
     spans : the first span budget of :func:`spans` (default: from the first mesh drawn); it
-        grows when a mesh needs more (each size is compiled once). With a second face group it is
+        grows when a mesh needs more (each size is compiled once). With further face groups it is
         also the first fragment budget of :func:`visible_faces`.
     """
 
@@ -438,42 +444,45 @@ class EdgeRenderer:
         return np.random.default_rng([int(seed), 7]).random((len(self.c2w), n, 2)).astype(np.float32)
 
     def render(self, vertices: np.ndarray, faces, seed: int = 0) -> np.ndarray:
-        """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With two face groups
-        (``faces`` a list of two; vertices (V, 3) shared or (2, V, 3) one set per group),
-        (n, 2, height, width): the silhouette and the mask of the second group where visible."""
+        """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With G face groups
+        (``faces`` a list of G; vertices (V, 3) shared or (G, V, 3) one set per group),
+        (n, G, height, width): the silhouette and the mask of each further group where visible."""
         vertices = np.asarray(vertices, np.float32)
         jitter = self._jitter(seed)
-        if _group_count(faces) == 1:
+        n_groups = _group_count(faces)
+        if n_groups == 1:
             groups = _face_classes(faces)[0]
             v = jnp.asarray(vertices.reshape(-1, 3))
             masks, = self._run(("render", *_faces_key(groups)), groups, lambda: v, lambda f, budget: _render_fn(
                 self.width, self.height, self.ss, budget)(v, f, self._w2c, self.focal, jitter))
             return np.asarray(masks, np.float32)
-        blocks = 2 if vertices.ndim == 3 and len(vertices) == 2 else 1
+        blocks = n_groups if vertices.ndim == 3 and len(vertices) == n_groups else 1
         groups, classes = _face_classes(faces, vertices.shape[-2], blocks)
         v, cls = jnp.asarray(vertices.reshape(-1, 3)), jnp.asarray(classes)
-        masks = self._run(("render", *_faces_key(groups), len(classes) - int(classes.sum())), groups, lambda: v,
-                          lambda f, budget: _class_render_fn(self.width, self.height, self.ss, budget)(
-                              v, f, cls, self._w2c, self.focal, jitter), classes)
-        return np.stack([np.asarray(m, np.float32) for m in masks], 1)
+        area, class_area = self._run(("render", *_faces_key(groups), *_class_sizes(classes)), groups, lambda: v,
+                                     lambda f, budget: _class_render_fn(self.width, self.height, self.ss, budget,
+                                                                        n_groups - 1)(
+                                         v, f, cls, self._w2c, self.focal, jitter), classes)
+        return np.concatenate([np.asarray(area, np.float32)[:, None], np.asarray(class_area, np.float32)], 1)
 
     def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces, n_vertices: int,
                       targets: np.ndarray, seed: int = 0, highlight_targets: np.ndarray | None = None,
                       highlight_weight: float = 0.0, highlight_levels: int = 1,
                       highlight_loss: str = "mse") -> tuple[float, np.ndarray]:
-        """Mean over views of the pixel MSE between rendered and target masks (plus
-        ``highlight_weight`` times the ``highlight_loss`` of the second face group's masks, ``"mse"``
-        or ``"dice"``, averaged over ``highlight_levels`` levels of a 2 x 2 mean pyramid:
-        :func:`pyramid_loss`), and d loss / d z. ``vertex_fn``: pure JAX z (m,) -> flattened world
-        vertices, (3 V,) shared by the face groups or (G * 3 V,) one block per group (``n_vertices``
-        = V)."""
+        """Mean over views of the pixel MSE between rendered and target masks (plus, per further
+        face group k, ``highlight_weight[k]`` times the ``highlight_loss`` of its masks against
+        ``highlight_targets[:, k]``, ``"mse"`` or ``"dice"``, averaged over ``highlight_levels``
+        levels of a 2 x 2 mean pyramid: :func:`pyramid_loss`), and d loss / d z. One further group
+        may give its targets (n, H, W) and weight as a number. ``vertex_fn``: pure JAX z (m,) ->
+        flattened world vertices, (3 V,) shared by the face groups or (G * 3 V,) one block per
+        group (``n_vertices`` = V)."""
         highlight = None
-        if _group_count(faces) == 2:
+        if _group_count(faces) > 1:
             if highlight_loss not in ("mse", "dice"):
                 raise ValueError(f"unknown class-mask loss {highlight_loss!r} (known: mse, dice)")
-            blank = np.zeros_like(np.asarray(targets, np.float32))
-            highlight = (blank if highlight_targets is None else highlight_targets, float(highlight_weight),
-                         int(highlight_levels), highlight_loss)
+            class_targets, weights = highlight_arrays(targets, _group_count(faces) - 1, highlight_targets,
+                                                      highlight_weight)
+            highlight = (class_targets, weights, int(highlight_levels), highlight_loss)
         loss, grad = self._call(vertex_fn, np.asarray(z)[None], faces, targets, [seed], batched=False,
                                 n_vertices=n_vertices, highlight=highlight)
         return float(loss[0]), grad[0]
@@ -487,7 +496,8 @@ class EdgeRenderer:
     def _call(self, vertex_fn, zs, faces, targets, seeds, batched: bool, n_vertices: int | None = None,
               highlight: tuple | None = None):
         """Losses (b,) and gradients (b, m) of ``zs`` (b, m), one compiled call (batched) or one per
-        point; ``highlight``: (class targets, weight, levels, loss) of a second face group."""
+        point; ``highlight``: (class targets (n, K, H, W), weights (K,), levels, loss) of the K
+        further face groups."""
         zj = np.asarray(zs, np.float32)  # numpy into the compiled calls: one transfer each, no eager ops
         targets = self._on_device(targets)
         jitter = np.stack([self._jitter(s) for s in seeds])
@@ -522,7 +532,7 @@ class EdgeRenderer:
             size = int(np.prod(jax.eval_shape(vertex_fn, zj[0]).shape))
             self._blocks[vertex_fn, n_vertices] = size // (3 * int(n_vertices))
         groups, classes = _face_classes(faces, n_vertices, self._blocks[vertex_fn, n_vertices])
-        key = ("class", *_faces_key(groups), len(classes) - int(classes.sum()))
+        key = ("class", *_faces_key(groups), *_class_sizes(classes))
         if key not in self._classes:
             self._classes[key] = jnp.asarray(classes)
         cls, class_targets = self._classes[key], self._on_device(highlight[0])
@@ -559,24 +569,21 @@ def _faces_key(faces: np.ndarray) -> tuple:
     return faces.shape, faces[:16].tobytes(), faces[-16:].tobytes()
 
 
-def _group_count(faces) -> int:
-    """How many face groups ``faces`` holds (an array is one; a list, one per entry); more than two are refused."""
-    n = len(faces) if isinstance(faces, (list, tuple)) else 1
-    if n > 2:
-        raise UserError(f"the jax renderer draws a silhouette and at most one class mask, not {n - 1}")
-    return n
-
-
 def _face_classes(faces, n_vertices: int = 0, blocks: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
-    """One face array (F, 3) of one or two face groups (:func:`_group_count`) and, for two, each
-    face's class (F,): 1 for the second group's. With one vertex block per group (``blocks`` 2) the
-    second group's indices move past the first block's ``n_vertices``."""
+    """One face array (F, 3) of G face groups (:func:`_group_count`) and, for more than one, each
+    face's class (F,): its group's index (0: the silhouette's alone). With one vertex block per
+    group (``blocks`` G) group g's indices move past the first g blocks of ``n_vertices``."""
     groups = [np.asarray(f, np.int32).reshape(-1, 3) for f in (faces if isinstance(faces, (list, tuple)) else [faces])]
     if _group_count(faces) == 1:
         return np.ascontiguousarray(groups[0]), None
-    second = groups[1] + (int(n_vertices) if blocks == 2 else 0)
-    classes = np.concatenate([np.zeros(len(groups[0])), np.ones(len(groups[1]))]).astype(np.float32)
-    return np.ascontiguousarray(np.concatenate([groups[0], second])), classes
+    shift = int(n_vertices) if blocks == len(groups) else 0
+    classes = np.concatenate([np.full(len(g), k) for k, g in enumerate(groups)]).astype(np.float32)
+    return np.ascontiguousarray(np.concatenate([g + k * shift for k, g in enumerate(groups)])), classes
+
+
+def _class_sizes(classes: np.ndarray) -> tuple[int, ...]:
+    """The number of faces of each class, a part of the keys of meshes with classes."""
+    return tuple(int(c) for c in np.bincount(classes.astype(np.int64)))
 
 
 @lru_cache(maxsize=64)
@@ -592,16 +599,16 @@ def _render_fn(width: int, height: int, ss: int, budget: int) -> StoredProgram:
 
 
 @lru_cache(maxsize=64)
-def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int]) -> StoredProgram:
-    """(vertices, faces, classes, w2c, focal, jitter) -> (pixel areas (n, H, W), the class's
-    visible areas (n, H, W), spans and fragments needed per view (n, 2))."""
+def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int], n_classes: int = 1) -> StoredProgram:
+    """(vertices, faces, classes, w2c, focal, jitter) -> (pixel areas (n, H, W), the classes'
+    visible areas (n, n_classes, H, W), spans and fragments needed per view (n, 2))."""
 
     def fn(vertices, faces, classes, w2c, focal, jitter):
         area, class_area, needed, _ = jax.vmap(lambda m, j: view_class_area(
-            vertices, m, focal, faces, classes, width, height, ss, j, budgets))(w2c, jitter)
+            vertices, m, focal, faces, classes, width, height, ss, j, budgets, n_classes=n_classes))(w2c, jitter)
         return area, class_area, needed
 
-    return _stored(fn, "class_render", width, height, ss, budgets)
+    return _stored(fn, "class_render", width, height, ss, budgets, n_classes)
 
 
 @lru_cache(maxsize=64)
@@ -656,11 +663,14 @@ def _silhouette_loss(width: int, height: int, ss: int, budget: int, batched: boo
 @lru_cache(maxsize=64)
 def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple) -> StoredProgram:
     """(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
-    d vertices, spans and fragments needed per view (n, 2)) with the class-mask term ``highlight``
-    (weight, pyramid levels, loss). The generator is not in the program (a building's takes longer
-    to compile than the renderer, and each resolution and budget is a program of its own): its
-    vector-Jacobian product is compiled once (:func:`_pullback`)."""
-    weight, levels, kind = highlight
+    d vertices, spans and fragments needed per view (n, 2)) with the class-mask terms ``highlight``
+    (a weight per class, pyramid levels, loss; class targets (n, K, H, W)). The generator is not in
+    the program (a building's takes longer to compile than the renderer, and each resolution and
+    budget is a program of its own): its vector-Jacobian product is compiled once (:func:`_pullback`)."""
+    weights, levels, kind = highlight
+
+    def class_loss(class_area, class_target):
+        return sum(weights[k] * pyramid_loss(class_area[k], class_target[k], levels, kind) for k in range(len(weights)))
 
     def surrogate(vertices, faces, classes, targets, class_targets, w2c, focal, jitter):
         n_views = len(targets)
@@ -668,12 +678,12 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
         def view(m, target, class_target, j):
             def grads(a, c):
                 return (2.0 * (a - target) / a.size / n_views,
-                        weight * jax.grad(lambda x: pyramid_loss(x, class_target, levels, kind))(c) / n_views)
+                        jax.grad(lambda x: class_loss(x, class_target))(c) / n_views)
 
             area, class_area, needed, sur = view_class_area(vertices.reshape(-1, 3), m, focal, faces, classes, width,
-                                                            height, ss, j, budgets, grads)
+                                                            height, ss, j, budgets, grads, n_classes=len(weights))
             area, class_area = jax.lax.stop_gradient(area), jax.lax.stop_gradient(class_area)
-            loss = jnp.mean((area - target) ** 2) + weight * pyramid_loss(class_area, class_target, levels, kind)
+            loss = jnp.mean((area - target) ** 2) + class_loss(class_area, class_target)
             return loss / n_views, sur, needed
 
         loss, sur, needed = jax.vmap(view)(w2c, targets, class_targets, jitter)

@@ -1,9 +1,10 @@
 """Differentiable silhouettes with Mitsuba 3 (DESIGN.md, "Silhouette rendering").
 
 The mesh is an area emitter of radiance 1 and there is no other light, so the rendered
-image is the mask (pixel coverage). With two face groups (the second a building's windows) the
-mesh is two emitters, (1, 0, 0) and (1, 1, 0): red is the silhouette and green the visible part
-of the second group (its mask), both edges of meshes, so both differentiate. Each group may have
+image is the mask (pixel coverage). With further face groups (a building's windows, its roof)
+the mesh is one emitter per group, (1, 0, 0), (1, 1, 0) and (1, 0, 1): red is the silhouette,
+green and blue the visible parts of the second and third groups (their masks), all edges of
+meshes, so all differentiate. Each group may have
 its own vertex block (a generator with shared positions keeps every face in both groups and moves
 each group's other vertices to a point, so one scene serves every topology). ``direct_projective`` with ``sppi = 0`` differentiates
 the visibility discontinuities at silhouette edges. Vertex positions come from a JAX
@@ -16,7 +17,41 @@ from typing import Callable
 
 import numpy as np
 
+from ipm.errors import UserError
 from ipm.render.cameras import sensor_dict
+
+GROUPS = (("object", [1.0, 0.0, 0.0]), ("highlight", [1.0, 1.0, 0.0]), ("highlight2", [1.0, 0.0, 1.0]))
+"""Each face group's emitter: its name in the scene and its colour (the channel of its mask)."""
+
+MAX_GROUPS = 3
+"""Face groups a renderer draws at most: the silhouette and two class masks (the colour channels
+of :data:`GROUPS`; ``ipm.render.edges`` keeps the same bound)."""
+
+
+def group_count(faces) -> int:
+    """How many face groups ``faces`` holds (an array is one; a list, one per entry); more than
+    :data:`MAX_GROUPS` are refused."""
+    n = len(faces) if isinstance(faces, (list, tuple)) else 1
+    if n > MAX_GROUPS:
+        raise UserError(f"the renderers draw a silhouette and at most {MAX_GROUPS - 1} class masks, not {n - 1}")
+    return n
+
+
+def highlight_arrays(targets, n_classes: int, highlight_targets, highlight_weight) -> tuple[np.ndarray, tuple]:
+    """The class targets (n, K, H, W) and weights (K,) of ``n_classes`` further face groups from a
+    renderer's ``highlight_targets`` ((n, H, W) for one class, (n, K, H, W); None: empty masks) and
+    ``highlight_weight`` (a number for one class, or K numbers)."""
+    targets = np.asarray(targets, np.float32)
+    if highlight_targets is None:
+        highlight_targets = np.zeros((len(targets), n_classes, *targets.shape[1:]), np.float32)
+    highlight_targets = np.asarray(highlight_targets, np.float32)
+    if highlight_targets.ndim == 3:
+        highlight_targets = highlight_targets[:, None]
+    weights = tuple(float(w) for w in np.atleast_1d(highlight_weight))
+    if highlight_targets.shape != (len(targets), n_classes, *targets.shape[1:]) or len(weights) != n_classes:
+        raise ValueError(f"{n_classes} class masks need targets of shape {(len(targets), n_classes, *targets.shape[1:])}"
+                         f" and {n_classes} weights, not {highlight_targets.shape} and {len(weights)}")
+    return highlight_targets, weights
 
 
 class SilhouetteRenderer:
@@ -37,14 +72,14 @@ class SilhouetteRenderer:
 
     def _scene(self, groups: list[np.ndarray], n_vertices: int):
         """A scene (one mesh emitter per face group + one sensor per view) for these faces, built
-        once: group 0 emits (1, 0, 0), group 1 (1, 1, 0)."""
+        once, group g emitting :data:`GROUPS`' g-th colour."""
         key = (n_vertices, tuple((g.shape, g[:16].tobytes(), g[-16:].tobytes()) for g in groups))
         if key not in self._scenes:
             import mitsuba as mi
 
             scene = {"type": "scene", "integrator": {"type": "direct_projective", "sppi": 0}}
             names = []
-            for name, sel, colour in zip(("object", "highlight"), groups, ([1.0, 0.0, 0.0], [1.0, 1.0, 0.0])):
+            for (name, colour), sel in zip(GROUPS, groups):
                 if not len(sel):
                     continue
                 props = mi.Properties()
@@ -63,20 +98,20 @@ class SilhouetteRenderer:
         return self._scenes[key]
 
     def render(self, vertices: np.ndarray, faces, seed: int = 0) -> np.ndarray:
-        """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With two face groups
-        (``faces`` a list of two; vertices (V, 3) shared or (2, V, 3) one set per group),
-        (n, 2, height, width): the silhouette and the mask of the second group where visible."""
+        """Masks (n, height, width) in [0, 1] of a fixed mesh (no gradients). With G face groups
+        (``faces`` a list of G; vertices (V, 3) shared or (G, V, 3) one set per group),
+        (n, G, height, width): the silhouette and the mask of each further group where visible."""
         import mitsuba as mi
 
         groups = _face_groups(faces)
         vertices = np.asarray(vertices, np.float32)
         blocks = list(vertices) if len(vertices) == len(groups) and vertices.ndim == 3 else [vertices.reshape(-1, 3)] * len(groups)
         scene, params, names = self._scene(groups, len(blocks[0]))
-        for name, block in zip(("object", "highlight"), blocks):
+        for (name, _), block in zip(GROUPS, blocks):
             if name in names:
                 params[f"{name}.vertex_positions"] = mi.Float(block.ravel())
         params.update()
-        out = [np.array(mi.render(scene, sensor=i, spp=self.spp, seed=seed))[..., :2]
+        out = [np.array(mi.render(scene, sensor=i, spp=self.spp, seed=seed))[..., : len(groups)]
                for i in range(len(self.c2w))]
         out = np.clip(np.stack(out), 0.0, 1.0)
         return out[..., 0] if len(groups) == 1 else np.moveaxis(out, -1, 1)
@@ -85,14 +120,15 @@ class SilhouetteRenderer:
                       targets: np.ndarray, seed: int = 0, highlight_targets: np.ndarray | None = None,
                       highlight_weight: float = 0.0, highlight_levels: int = 1,
                       highlight_loss: str = "mse") -> tuple[float, np.ndarray]:
-        """Mean over views of the pixel MSE between rendered and target masks (plus
-        ``highlight_weight`` times the ``highlight_loss`` of the second face group's masks,
-        ``"mse"`` or ``"dice"``, averaged over ``highlight_levels`` levels of a 2x2 mean pyramid:
-        :func:`_pyramid_loss`), and d loss / d z.
+        """Mean over views of the pixel MSE between rendered and target masks (plus, per further
+        face group k, ``highlight_weight[k]`` times the ``highlight_loss`` of its masks against
+        ``highlight_targets[:, k]``, ``"mse"`` or ``"dice"``, averaged over ``highlight_levels``
+        levels of a 2x2 mean pyramid: :func:`_pyramid_loss`), and d loss / d z. One further group
+        may give its targets (n, H, W) and weight as a number.
 
         ``vertex_fn`` is a pure JAX function z (m,) -> flattened world vertices: (3 V,) shared by
         the face groups, or (G * 3 V,) one block per group (``n_vertices`` = V). ``faces``: one
-        array, or a list of face groups (the second one's mask is the highlight).
+        array, or a list of face groups (the masks of all but the first are highlights).
         """
         import drjit as dr
         import mitsuba as mi
@@ -102,12 +138,15 @@ class SilhouetteRenderer:
             wrapped = dr.wrap(source="drjit", target="jax")(vertex_fn)
             self._wrapped[vertex_fn] = wrapped
         groups = _face_groups(faces)
+        if len(groups) > 1:
+            highlight_targets, weights = highlight_arrays(targets, len(groups) - 1, highlight_targets,
+                                                          highlight_weight)
         scene, params, names = self._scene(groups, n_vertices)
         zt = mi.TensorXf(np.asarray(z, np.float32))
         dr.enable_grad(zt)
         verts = wrapped(zt).array
         blocks = dr.width(verts) // (3 * n_vertices)
-        for g, name in enumerate(("object", "highlight")[: len(groups)]):
+        for g, (name, _) in enumerate(GROUPS[: len(groups)]):
             if name in names:
                 params[f"{name}.vertex_positions"] = verts if blocks == 1 else dr.gather(
                     mi.Float, verts, dr.arange(mi.UInt32, 3 * n_vertices) + 3 * n_vertices * g)
@@ -118,9 +157,10 @@ class SilhouetteRenderer:
             img = mi.render(scene, params, sensor=i, spp=self.spp, seed=seed * n + i)
             ref = mi.TensorXf(np.asarray(targets[i], np.float32)[..., None])
             loss = loss + dr.mean(dr.square(img[..., 0:1] - ref), axis=None) / n
-            if len(groups) > 1 and highlight_weight > 0:
-                loss = loss + highlight_weight * _pyramid_loss(img[..., 1:2].array, highlight_targets[i],
-                                                               highlight_levels, highlight_loss) / n
+            for k, weight in enumerate(weights if len(groups) > 1 else (), start=1):
+                if weight > 0:
+                    loss = loss + weight * _pyramid_loss(img[..., k:k + 1].array, highlight_targets[i, k - 1],
+                                                         highlight_levels, highlight_loss) / n
         dr.backward(loss)
         grad = np.array(dr.grad(zt), np.float64)
         value = float(np.array(loss.array if hasattr(loss, "array") else loss).ravel()[0])
@@ -128,7 +168,8 @@ class SilhouetteRenderer:
 
 
 def _face_groups(faces) -> list[np.ndarray]:
-    """``faces`` as a list of face groups (one array is one group)."""
+    """``faces`` as a list of face groups (one array is one group; at most three)."""
+    group_count(faces)
     return [np.asarray(f) for f in faces] if isinstance(faces, (list, tuple)) else [np.asarray(faces)]
 
 
