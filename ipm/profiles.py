@@ -91,6 +91,13 @@ class DiffProfile:
     """Whether decide also tries each value turned a quarter (width and depth traded, the counts
     the views show read in again) for a generator with a front (``Generator.marker``): one view
     without the door cannot tell a house's front from its side, but a gable's ridge can."""
+    decide_least: bool = False
+    """Whether a value decide tries starts the continuous parameters it turns on (and the current
+    value had off) at their lower bounds: the new kind as near the old as it can be (a flat roof's
+    unused roof height would otherwise start a gable at whatever height a preset left there; a
+    hip's ratio at its least is the hip nearest a gable). Off: dev in family 0.975 -> 0.975
+    (building_d17's flat fit finds its low gable, 0.955 -> 0.981), building_ext 0.796 -> 0.778
+    (seeds 0-3; one seed's near-tie in the race flipped), README."""
     sight_steps: int = 0
     """Before the last refinement stage, for a generator with a ``footprint`` (buildings): that
     footprint's side the first view looks along is tried as it stands and times each of

@@ -298,6 +298,34 @@ def test_decide_tries_every_kind_of_roof():
     assert round(decide(problem, z, get_profile("default", decide_steps=0), lowest_at(1), lowest_at(2))[i] * 2) == 0
 
 
+def test_decide_least_starts_what_a_roof_turns_on_at_its_least():
+    """With ``decide_least`` a gable tried from a flat roof starts at the least roof height, and a
+    hip its ratio at the least too (the hip nearest a gable); what the flat roof used, and what
+    every kind uses, keeps its value; without it the unused height a preset left stays."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    ix, n = gen.spec.index, problem.n_shape
+    x = gen.presets["townhouse"].copy()
+    assert x[ix["roof_type"]] == 0 and x[ix["roof_height"]] > gen.spec.lower[ix["roof_height"]]
+    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
+    starts = {}
+
+    def record(v, seed=None):
+        starts.setdefault(round(v[ix["roof_type"]] * 2), v.copy())
+        return 0.0, np.zeros_like(v)
+
+    for least in (True, False):
+        starts.clear()
+        decide(problem, z, get_profile("default", decide_steps=1, decide_least=least), record,
+               lambda v, seed=None: (0.0, np.zeros_like(v)))
+        gable, hip = (gen.spec.from_unit(starts[k][:n]) for k in (1, 2))
+        height = gen.spec.lower[ix["roof_height"]] if least else x[ix["roof_height"]]
+        assert gable[ix["roof_height"]] == pytest.approx(height) and hip[ix["roof_height"]] == pytest.approx(height)
+        assert hip[ix["hip_ratio"]] == pytest.approx(gen.spec.lower[ix["hip_ratio"]] if least else x[ix["hip_ratio"]])
+        for name in ("width", "floor_height", "roof_overhang"):
+            assert gable[ix[name]] == pytest.approx(x[ix[name]])
+
+
 def test_decide_race_gives_a_descending_candidate_more_steps():
     """With one round the converged current roof beats a new roof still on its way down (the
     scoring objective's loss of the new one is its distance to a point the steps walk towards);

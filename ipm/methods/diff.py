@@ -290,17 +290,20 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     matches a gable roof only turned, since a gable's ridge has a direction. With
     ``decide_rounds`` above 1 the candidates race: after each round the better half (at least
     two) get ``decide_steps`` more from where they stand, since the current value starts
-    converged and a new roof is still descending when the first round ends."""
+    converged and a new roof is still descending when the first round ends. With
+    ``decide_least`` the continuous parameters a value turns on start at their lower bounds."""
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = _scorer(score_objective, (10_005, 10_006))
     for name in gen.categorical:
         i = spec.index[name]
         if profile.decide_steps <= 0 or not gen.active(spec.from_unit(z[:n]))[i]:
             continue
-        pool = []
+        pool, on = [], gen.active(spec.from_unit(z[:n]))
         for k in range(int(spec.levels[i])):
             alt = z.copy()
             alt[i] = k / (spec.levels[i] - 1)
+            if profile.decide_least:
+                alt[:n][gen.active(spec.from_unit(alt[:n])) & ~on & ~spec.discrete] = 0.0
             value = f"{name}={spec.lower[i] + k:g}"
             pool += [(value, alt)] + ([(f"{value} turned", recount(turned(problem, alt, np.pi / 2)))]
                                       if recount is not None else [])
