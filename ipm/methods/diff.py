@@ -80,6 +80,9 @@ class Objective:
         self.class_targets = np.ascontiguousarray(np.stack([t[0] for t in terms], 1)) if terms else None
         self.class_labels = tuple(t[1] for t in terms)
         self.class_weight = tuple(t[2] for t in terms)
+        self._part_class = np.zeros(len(gen.part_semantic), int)  # each part's face group (0: no class term)
+        for k, label in enumerate(self.class_labels, start=1):
+            self._part_class[np.asarray(gen.part_semantic) == label] = k
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
         self.calls = 0
         self._shared = None  # the shared-positions rendering, built on first use
@@ -90,10 +93,7 @@ class Objective:
         hence one set of compiled kernels, for all topologies: the same for every key); else the
         topology's faces, split by the mask classes when there are class terms (group k: the
         parts of the k-th class, group 0: the others)."""
-        gen = self.problem.generator
-        part_class = np.zeros(len(gen.part_semantic), int)
-        for k, label in enumerate(self.class_labels, start=1):
-            part_class[np.asarray(gen.part_semantic) == label] = k
+        gen, part_class = self.problem.generator, self._part_class
         if gen.shared_positions:
             if self._shared is None:
                 parts = np.arange(len(gen.part_names))

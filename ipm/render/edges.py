@@ -476,12 +476,11 @@ class EdgeRenderer:
         may give its targets (n, H, W) and weight as a number. ``vertex_fn``: pure JAX z (m,) ->
         flattened world vertices, (3 V,) shared by the face groups or (G * 3 V,) one block per
         group (``n_vertices`` = V)."""
-        highlight = None
-        if _group_count(faces) > 1:
+        highlight, n_groups = None, _group_count(faces)
+        if n_groups > 1:
             if highlight_loss not in ("mse", "dice"):
                 raise ValueError(f"unknown class-mask loss {highlight_loss!r} (known: mse, dice)")
-            class_targets, weights = highlight_arrays(targets, _group_count(faces) - 1, highlight_targets,
-                                                      highlight_weight)
+            class_targets, weights = highlight_arrays(targets, n_groups - 1, highlight_targets, highlight_weight)
             highlight = (class_targets, weights, int(highlight_levels), highlight_loss)
         loss, grad = self._call(vertex_fn, np.asarray(z)[None], faces, targets, [seed], batched=False,
                                 n_vertices=n_vertices, highlight=highlight)
