@@ -184,6 +184,13 @@ class Problem:
         out[ls] -= log_k
         return out
 
+    def with_shape(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``z`` with its shape genes set to the parameters ``x`` (clipped into their bounds), projected
+        (:meth:`clip`): how the sweeps and the count reading put edited parameters back."""
+        out = np.array(z, np.float64)
+        out[: self.n_shape] = self.spec.to_unit(self.spec.clip(x))
+        return self.clip(out)
+
     def clip(self, z: np.ndarray) -> np.ndarray:
         """Project ``z`` into bounds; yaw is wrapped into [0, 2 pi)."""
         z = np.clip(np.asarray(z, np.float64), self.lower, self.upper)

@@ -388,8 +388,7 @@ def sweep_sight(problem: Problem, views: Views, z: np.ndarray, profile: DiffProf
         alt_x = x.copy()
         alt_x[i] *= factor
         alt_x = spec.clip(alt_x)
-        alt = z.copy()
-        alt[:n] = spec.to_unit(alt_x)
+        alt = problem.with_shape(z, alt_x)
         alt[t:t + 3] += away * (alt_x[i] - x[i]) / 2 / problem.anchor_s
         starts.append((f"sight x{factor:g}", problem.clip(alt)))
     return _race(problem, steps_objective, z, "sight x1", starts, profile.sight_steps, profile.sight_margin, profile,
@@ -423,9 +422,7 @@ def sweep_place(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_obj
     for values in problem.generator.placements:
         alt_x = x.copy()
         alt_x[[spec.index[k] for k in values]] = list(values.values())
-        alt = z.copy()
-        alt[:n] = spec.to_unit(spec.clip(alt_x))
-        starts.append(("place " + " ".join(f"{k}={v:g}" for k, v in values.items()), problem.clip(alt)))
+        starts.append(("place " + " ".join(f"{k}={v:g}" for k, v in values.items()), problem.with_shape(z, alt_x)))
     return _race(problem, steps_objective, z, "place kept", starts, profile.place_steps, profile.place_margin, profile,
                  _scorer(score_objective, (10_015, 10_016)), on_eval, record)
 
@@ -523,10 +520,10 @@ def _choose(zs: list[np.ndarray], objective, record) -> np.ndarray:
 def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
     """``z`` turned by ``angle`` about +y; a quarter turn also trades the footprint's sides
     (``Generator.quarter_turned``), so that the turned object covers the same ground."""
-    spec, n = problem.spec, problem.n_shape
-    z = z.copy()
+    n = problem.n_shape
     if abs(np.cos(angle)) < 0.5:
-        z[:n] = spec.to_unit(problem.generator.quarter_turned(spec.from_unit(z[:n])))
+        z = problem.with_shape(z, problem.generator.quarter_turned(problem.spec.from_unit(z[:n])))
+    z = np.array(z, np.float64)
     z[n] += angle
     return problem.clip(z)
 
@@ -559,9 +556,7 @@ def read_counts_into(problem: Problem, views: Views,
         if value != round(x[spec.index[name]]):
             x = gen.change_count(x, name, value)
             changes.append(f"{name}={value}")
-    z = z.copy()
-    z[:n] = spec.to_unit(x)
-    return problem.clip(z), changes, frozenset(found) | (frozenset(gen.counts) - frozenset(seen))
+    return problem.with_shape(z, x), changes, frozenset(found) | (frozenset(gen.counts) - frozenset(seen))
 
 
 def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
