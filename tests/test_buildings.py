@@ -69,6 +69,26 @@ def test_height_is_floors_and_roof(gen, roof):
     assert roof_y.min() == pytest.approx(top, abs=1e-5)
 
 
+@pytest.mark.parametrize("roof", [GABLE, HIP])
+def test_split_roof_shares_the_height_out_anew(gen, roof):
+    """A pitched roof takes the share of the height asked, the storeys the rest: the house is as
+    tall as before, the floor height takes up the change or, out of its bounds, a storey goes;
+    the overhang at least a third of its range. A flat roof has no split."""
+    ix = gen.spec.index
+    x = _with(gen, "house", floors=2, roof_type=roof, chimney=0, floor_height=0.4, ground_extra=0.05,
+              roof_height=0.2, roof_overhang=0.0)
+    top = gen.mesh(x, 0).vertices[:, 1].max()
+    for share, floors in ((0.3, 2), (0.6, 1)):
+        y = gen.split_roof(x, share)
+        assert y[ix["floors"]] == floors and gen.spec.lower[ix["floor_height"]] <= y[ix["floor_height"]] <= 0.45
+        assert y[ix["roof_height"]] == pytest.approx(share * 1.05)
+        assert gen.mesh(y, 0).vertices[:, 1].max() == pytest.approx(top, abs=1e-5)
+        assert y[ix["roof_overhang"]] == pytest.approx(0.05)
+        assert y[ix["width"]] == x[ix["width"]] and y[ix["windows_front"]] == x[ix["windows_front"]]
+    assert gen.split_roof(_with(gen, "house", roof_type=FLAT), 0.5) is None
+    assert get_generator("dishes").split_roof(get_generator("dishes").spec.from_dict({}), 0.5) is None
+
+
 def test_inert_parameters_depend_on_the_structure(gen):
     ix = gen.spec.index
     flat = gen.active(_with(gen, "townhouse", chimney=0))

@@ -385,6 +385,35 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
     assert plain[n] == z[n] and round(plain[ix["roof_type"]] * 2) == 1
 
 
+def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
+    """With ``decide_shares`` each pitched roof (each turned too) also starts with the roof that
+    share of the height (``Generator.split_roof``), a flat roof not; the split start wins where
+    the scoring objective wants its share."""
+    gen = get_generator("buildings")
+    problem = Problem(gen, np.zeros(3), 1.0)
+    ix, n = gen.spec.index, problem.n_shape
+    x = gen.spec.from_dict({"floors": 2, "roof_type": 1, "floor_height": 0.4, "ground_extra": 0.05,
+                            "roof_height": 0.2}, gen.presets["house"])
+    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
+    names = []
+
+    def share(v):
+        y = gen.spec.from_unit(v[:n])
+        return y[ix["roof_height"]] / (y[ix["floors"]] * y[ix["floor_height"]] + y[ix["ground_extra"]] + y[ix["roof_height"]])
+
+    def score(v, seed=None):
+        return float(abs(share(v) - 0.6) + (round(v[ix["roof_type"]] * 2) != 2)), np.zeros_like(v)
+
+    prof = get_profile("default", decide_steps=1, decide_shares=(0.3, 0.6))
+    best = decide(problem, z, prof, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
+                  record=lambda name, loss: names.append(name), recount=lambda v: v)
+    assert round(best[ix["roof_type"]] * 2) == 2 and share(best) == pytest.approx(0.6)
+    first = names[:14]
+    assert first[:2] == ["roof_type=0", "roof_type=0 turned"] and len(first) == len(set(first)) == 14
+    assert {"roof_type=2 roof 0.6", "roof_type=2 roof 0.6 turned", "roof_type=1 roof 0.3"} <= set(first)
+    assert not any(name.startswith("roof_type=0 roof") for name in names)
+
+
 def test_sight_sweep_stretches_the_side_the_view_looks_along():
     """The footprint side the first camera looks along is the one stretched (depth seen from the
     front, width from the side or with the house turned a quarter); each stretch keeps the face

@@ -230,6 +230,12 @@ class Generator:
             out[i], out[j] = x[j], x[i]
         return self.spec.clip(out)
 
+    def split_roof(self, x: np.ndarray, share: float) -> np.ndarray | None:
+        """``x`` with ``share`` of its height given to its roof and the rest to its walls (the
+        object's outline kept), for :func:`ipm.methods.diff.decide`; None where the object has no
+        such split (a flat roof, a cup). Default: None."""
+        return None
+
     def change_count(self, x: np.ndarray, name: str, value: float) -> np.ndarray:
         """``x`` with the count parameter ``name`` set to ``value`` and the continuous parameters
         tied to it moved so the object keeps its size (a storey more at the same wall height).

@@ -254,6 +254,29 @@ class Buildings(Generator):
             x[ix["floor_height"]] = walls / x[ix["floors"]]
         return self.spec.clip(x)
 
+    def split_roof(self, x, share):
+        """A pitched roof ``share`` of the height (walls, ground-floor extra and roof together),
+        the storeys the rest: the floor height takes up the change, or a storey fewer or more
+        where it would leave its bounds; the overhang at least a third of its range. One view of a
+        low house shows where the eaves meet the walls only through a kink in the outline, so a fit
+        that took a tall roof for walls (or walls for roof) stays there. None for a flat roof."""
+        spec, ix = self.spec, self.spec.index
+        if int(round(float(x[ix["roof_type"]]))) == FLAT:
+            return None
+        x = np.array(x, np.float64)
+        floors, fh = x[ix["floors"]], x[ix["floor_height"]]
+        total = floors * fh + x[ix["ground_extra"]] + x[ix["roof_height"]]
+        x[ix["roof_height"]] = share * total
+        walls = max(total - x[ix["roof_height"]] - x[ix["ground_extra"]], 0.0)
+        lo, hi = spec.lower[ix["floor_height"]], spec.upper[ix["floor_height"]]
+        if not lo <= walls / floors <= hi:
+            floors = np.round(walls / fh)
+        x[ix["floors"]] = np.clip(floors, spec.lower[ix["floors"]], spec.upper[ix["floors"]])
+        x[ix["floor_height"]] = walls / x[ix["floors"]]
+        i = ix["roof_overhang"]
+        x[i] = max(x[i], spec.lower[i] + (spec.upper[i] - spec.lower[i]) / 3)
+        return spec.clip(x)
+
     def facades(self, x):
         """The four walls' outer faces up to the cornice (the facade boxes' planes)."""
         ix = self.spec.index

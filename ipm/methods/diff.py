@@ -291,7 +291,9 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     ``decide_rounds`` above 1 the candidates race: after each round the better half (at least
     two) get ``decide_steps`` more from where they stand, since the current value starts
     converged and a new roof is still descending when the first round ends. With
-    ``decide_least`` the continuous parameters a value turns on start at their lower bounds."""
+    ``decide_least`` the continuous parameters a value turns on start at their lower bounds; with
+    ``decide_shares`` each value (and each turned) also starts with the height shared anew between
+    roof and walls (``Generator.split_roof``)."""
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = _scorer(score_objective, (10_005, 10_006))
     for name in gen.categorical:
@@ -305,8 +307,11 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
             if profile.decide_least:
                 alt[:n][gen.active(spec.from_unit(alt[:n])) & ~on & ~spec.discrete] = 0.0
             value = f"{name}={spec.lower[i] + k:g}"
-            pool += [(value, alt)] + ([(f"{value} turned", recount(turned(problem, alt, np.pi / 2)))]
-                                      if recount is not None else [])
+            splits = [(share, gen.split_roof(spec.from_unit(alt[:n]), share)) for share in profile.decide_shares]
+            for tag, start in [(value, alt)] + [(f"{value} roof {share:g}", problem.with_shape(alt, x))
+                                                for share, x in splits if x is not None]:
+                pool += [(tag, start)] + ([(f"{tag} turned", recount(turned(problem, start, np.pi / 2)))]
+                                          if recount is not None else [])
         for r in range(max(profile.decide_rounds, 1)):
             tried = [_tried(problem, steps_objective, start, tag if r == 0 else f"{tag} (round {r + 1})",
                             profile.decide_steps, profile, score, on_eval, record) for tag, start in pool]
@@ -590,7 +595,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     memetic_evals = profile.ga_iterations * (profile.adam_per_iteration + profile.population)
     total = (len(starts) * memetic_evals + sum(profile.refine_iterations)
              + len(profile.refine_res)
-             + sum(decide_evaluations(int(problem.spec.levels[problem.spec.index[c]]) * (1 + turns), profile)
+             + sum(decide_evaluations(int(problem.spec.levels[problem.spec.index[c]]) * (1 + turns)
+                                      * (1 + len(profile.decide_shares)), profile)
                    for c in problem.generator.categorical)
              + sight_evaluations(problem, profile)
              + place_evaluations(problem, profile)
