@@ -373,15 +373,15 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
         return float(np.sum((v - want) ** 2)), np.zeros_like(v)
 
     recounted = []
-    best = decide(problem, z, get_profile("default", decide_steps=2), lambda v, seed=None: (0.0, np.zeros_like(v)),
-                  score, recount=lambda v: recounted.append(v) or v)
+    prof = get_profile("default", decide_steps=2, decide_shares=())
+    best = decide(problem, z, prof, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
+                  recount=lambda v: recounted.append(v) or v)
     np.testing.assert_allclose(best, want)
     assert len(recounted) == 3
     back = gen.spec.from_unit(best[:n])
     assert (back[ix["width"]], back[ix["depth"]]) == pytest.approx((0.8, 1.2))
     assert np.angle(np.exp(1j * (best[n] - z[n]))) == pytest.approx(np.pi / 2)
-    plain = decide(problem, z, get_profile("default", decide_steps=2), lambda v, seed=None: (0.0, np.zeros_like(v)),
-                   score)
+    plain = decide(problem, z, prof, lambda v, seed=None: (0.0, np.zeros_like(v)), score)
     assert plain[n] == z[n] and round(plain[ix["roof_type"]] * 2) == 1
 
 
