@@ -399,7 +399,8 @@ def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
 
     def share(v):
         y = gen.spec.from_unit(v[:n])
-        return y[ix["roof_height"]] / (y[ix["floors"]] * y[ix["floor_height"]] + y[ix["ground_extra"]] + y[ix["roof_height"]])
+        walls = y[ix["floors"]] * y[ix["floor_height"]] + y[ix["ground_extra"]]
+        return y[ix["roof_height"]] / (walls + y[ix["roof_height"]])
 
     def score(v, seed=None):
         return float(abs(share(v) - 0.6) + (round(v[ix["roof_type"]] * 2) != 2)), np.zeros_like(v)

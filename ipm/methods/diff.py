@@ -297,10 +297,10 @@ def decide(problem: Problem, z: np.ndarray, profile: DiffProfile, steps_objectiv
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = _scorer(score_objective, (10_005, 10_006))
     for name in gen.categorical:
-        i = spec.index[name]
-        if profile.decide_steps <= 0 or not gen.active(spec.from_unit(z[:n]))[i]:
+        i, on = spec.index[name], gen.active(spec.from_unit(z[:n]))
+        if profile.decide_steps <= 0 or not on[i]:
             continue
-        pool, on = [], gen.active(spec.from_unit(z[:n]))
+        pool = []
         for k in range(int(spec.levels[i])):
             alt = z.copy()
             alt[i] = k / (spec.levels[i] - 1)
