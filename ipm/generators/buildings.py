@@ -114,6 +114,12 @@ class _Solids:
         self.groups.append(("roof", jnp.full(1, part), jnp.reshape(valid, (1,)), vertices[None]))
 
 
+def _wall_top(p):
+    """Height of the walls' top (the storeys and the ground floor's extra), ``p`` a parameter's
+    value by name: one formula for the mesh, the facades and the roof split."""
+    return p("floors") * p("floor_height") + p("ground_extra")
+
+
 def _door_slots(n, n_doors, slots: int) -> jnp.ndarray:
     """Which of ``n`` evenly spaced slots (of ``slots`` at most) hold the ``n_doors`` doors,
     spread evenly: slot ``round((k + 1/2) n / n_doors - 1/2)`` for door k."""
@@ -265,7 +271,7 @@ class Buildings(Generator):
             return None
         x = np.array(x, np.float64)
         floors, fh = x[ix["floors"]], x[ix["floor_height"]]
-        total = floors * fh + x[ix["ground_extra"]] + x[ix["roof_height"]]
+        total = _wall_top(lambda k: x[ix[k]]) + x[ix["roof_height"]]
         x[ix["roof_height"]] = share * total
         walls = max(total - x[ix["roof_height"]] - x[ix["ground_extra"]], 0.0)
         lo, hi = spec.lower[ix["floor_height"]], spec.upper[ix["floor_height"]]
@@ -281,7 +287,7 @@ class Buildings(Generator):
         """The four walls' outer faces up to the cornice (the facade boxes' planes)."""
         ix = self.spec.index
         hx, hz = 0.5 * x[ix["width"]], 0.5 * x[ix["depth"]]
-        top = float(x[ix["floors"]] * x[ix["floor_height"]] + x[ix["ground_extra"]])
+        top = float(_wall_top(lambda k: x[ix[k]]))
         side = float(x[ix["depth"]] - 2 * x[ix["window_inset"]])
         spans = {"front": (float(x[ix["width"]]), (0.0, 0.0, hz)), "back": (float(x[ix["width"]]), (0.0, 0.0, -hz)),
                  "right": (side, (hx, 0.0, 0.0)), "left": (side, (-hx, 0.0, 0.0))}
@@ -358,7 +364,7 @@ class Buildings(Generator):
         hx, hz = 0.5 * w, 0.5 * d
         floors, roof_type = p("floors"), p("roof_type")
         flat = roof_type == FLAT
-        top = floors * p("floor_height") + p("ground_extra")
+        top = _wall_top(p)
         inset = p("window_inset") if lod >= 2 else 0.0
         out.boxes(WALLS, jnp.stack([-hx + inset, 0.0, -hz + inset]), jnp.stack([hx - inset, top, hz - inset]))
         if lod >= 2:
