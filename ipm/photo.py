@@ -166,6 +166,31 @@ def placed_pose(pose: dict, place: np.ndarray) -> dict:
             "scale": float(pose["scale"] * scale)}
 
 
+def misplaced(vertices: np.ndarray, c2w_given: np.ndarray, fov_x: float, width: int, height: int,
+              foot: tuple[float, float], d_pitch: float = 0.0, fov_rel: float = 0.0) -> np.ndarray:
+    """Where :func:`registration` would put ``vertices`` (the given world's exact shape) had the
+    camera-withheld fit got the shape exactly and only the camera wrong: pitched down ``d_pitch``
+    radians more, its horizontal field of view ``fov_rel`` too wide. The ray through the ``foot``
+    pixel then meets the ground elsewhere and the object keeps its size in the image, so the
+    world IoU of the result is what the camera's error alone costs (``bench/camera_sensitivity.py``)."""
+    from ipm.render.cameras import pixel_ray
+
+    def ground(cam, fov):
+        eye, ray = pixel_ray(*foot, cam, fov, width, height)
+        if ray[1] >= 0:
+            raise UserError("the foot pixel's ray does not meet the ground")
+        return eye + ray * (-eye[1] / ray[1]), 0.5 * width / np.tan(0.5 * fov)
+
+    given = np.asarray(c2w_given, np.float64)
+    c, s = np.cos(d_pitch), np.sin(d_pitch)
+    wrong = given.copy()
+    wrong[:3, :3] = given[:3, :3] @ np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+    (here, f), (there, f_wrong) = ground(given, fov_x), ground(wrong, fov_x * (1.0 + fov_rel))
+    eye = given[:3, 3]
+    scale = np.linalg.norm(there - eye) / np.linalg.norm(here - eye) * f / f_wrong
+    return there + scale * (np.asarray(vertices, np.float64) - here)
+
+
 def camera_errors(camera: dict, c2w_given: np.ndarray, fov_given: float) -> dict:
     """Pitch and roll errors (degrees) and the relative field-of-view error of an estimated
     ``camera`` against a given one."""

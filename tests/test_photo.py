@@ -146,6 +146,27 @@ def test_registration_keeps_the_ground_and_the_vertical():
     assert pose["translation"][1] == pytest.approx(0.0, abs=1e-9) and pose["scale"] == pytest.approx(0.5 * 1.5)
 
 
+def test_a_camera_error_moves_a_perfect_shape_along_the_foot_ray():
+    """``misplaced``: no error, no move; a pitch and field-of-view error keep the foot on its pixel
+    under the wrong camera, the ground on the ground and the object's size in the image."""
+    from ipm.photo import misplaced
+    from ipm.render.cameras import look_at
+
+    given, fov, w, h = look_at([0.0, 1.2, 3.0], [0.0, 0.3, 0.0]), 0.7, 64, 48
+    pts = np.array([[0.0, 0.0, 0.3], [0.05, 0.0, 0.3], [0.0, 0.4, 0.0], [-0.2, 0.0, -0.2]])
+    foot = tuple(project(pts[:1], given, fov, w, h)[0])
+    np.testing.assert_allclose(misplaced(pts, given, fov, w, h, foot), pts, atol=1e-12)
+    c, s = np.cos(0.03), np.sin(0.03)
+    wrong = given.copy()
+    wrong[:3, :3] = given[:3, :3] @ np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+    moved = misplaced(pts, given, fov, w, h, foot, d_pitch=0.03, fov_rel=0.1)
+    assert np.linalg.norm(moved[0] - pts[0]) > 0.05  # farther along the ground
+    np.testing.assert_allclose(project(moved[:1], wrong, 1.1 * fov, w, h)[0], foot, atol=1e-9)
+    np.testing.assert_allclose(moved[[0, 1, 3], 1], 0.0, atol=1e-12)
+    size = lambda p, cam, f: np.linalg.norm(np.diff(project(p[:2], cam, f, w, h), axis=0))  # noqa: E731
+    assert size(moved, wrong, 1.1 * fov) == pytest.approx(size(pts, given, fov), rel=0.02)
+
+
 def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
     """``photo``: view 0's mask without its camera; the result placed in the views' world for
     scoring, with the camera's errors recorded."""
