@@ -203,6 +203,12 @@ class DiffProfile:
     """Grid step of ``focal_sweep`` in log focal length (0.1: about 10 % in focal length)."""
     focal_steps: int = 100
     """Adam steps each point of ``focal_sweep`` gets, starting from its inner neighbour's result."""
+    pitch_sweep: int = 0
+    """With ``focal_sweep``, after it: the camera's pitch held at the estimate's and at this many
+    points on either side, ``pitch_step`` degrees apart, walked the same way (``focal_steps``
+    each; ``ipm.methods.diff.sweep_focal``); 0: none."""
+    pitch_step: float = 0.25
+    """Grid step of ``pitch_sweep`` in degrees."""
     read_counts: bool = True
     """Before each refinement stage, set the counts (storeys, windows per facade) to those the
     input views' class masks show on the facades they face (``ipm.facades``); needs class masks

@@ -309,6 +309,34 @@ def test_the_focal_sweep_finds_the_lowest_loss_over_the_field_of_view():
     assert sweep_focal(known, z, profile, objective) is z
 
 
+def test_the_pitch_sweep_walks_the_pitch_after_the_focal_length():
+    """With ``pitch_sweep`` the pitch is held on its own grid after the focal walk, and the lowest
+    loss wins even where the gradient cannot move the pitch (a valley Adam does not cross)."""
+    from dataclasses import replace
+
+    from ipm.generators import get_generator
+    from ipm.methods.diff import sweep_focal
+    from ipm.problem import POSE_NAMES, Problem
+    from ipm.profiles import get_profile
+
+    gen = get_generator("dishes")
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(32.0, 60.0, 64, 64))
+    problem = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=cam)
+    z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.3)
+    i, j = problem.n_shape + len(POSE_NAMES) + 2, problem.n_shape + len(POSE_NAMES)  # focal, pitch
+    target, pitches = z[j] + np.radians(0.5), []
+
+    def objective(x, seed=None):  # no gradient: only the grids move the camera
+        pitches.append(x[j])
+        return float((x[j] - target) ** 2 + (x[i] - z[i]) ** 2), np.zeros_like(x)
+
+    profile = replace(get_profile("smoke"), focal_sweep=1, focal_steps=5, pitch_sweep=2, pitch_step=0.25)
+    out = sweep_focal(problem, z, profile, objective)
+    assert out[i] == pytest.approx(z[i]) and out[j] == pytest.approx(target)
+    grid = z[j] + np.radians(0.25) * np.arange(-2, 3)
+    assert all(np.min(np.abs(grid - p)) < 1e-9 for p in pitches)
+
+
 def test_pitch_niches_bin_an_unknown_cameras_pitch():
     """``pitch_bins`` equal bins over the pitch prior (ends open) for an unknown camera; one niche
     for a known camera or one bin."""

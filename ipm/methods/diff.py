@@ -437,23 +437,13 @@ def sweeps_focal(problem: Problem, profile: DiffProfile) -> bool:
     return problem.fov_estimated is True and profile.focal_sweep > 0 and profile.focal_steps > 0
 
 
-def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective,
-                on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
-    """For an unknown camera whose field of view is not given: a profile of the loss over the
-    focal length. The focal gene is held at ``z``'s and at ``focal_sweep`` points either side,
-    ``focal_step`` apart, walking outwards with each point starting from its inner neighbour's
-    result (a continuation: the pitch, pose and shape follow the focal length a step at a time),
-    everything else given ``focal_steps`` Adam steps under ``objective``; the point of lowest loss
-    (same render seeds) wins. The loss over the focal length is shallow (a few per cent between the
-    truth's and a field of view 40 % too wide, cup_1), too shallow for Adam to cross with
-    everything else moving; and a far focal length started from a point fitted to another scores
-    worse than its own basin would, hence the walk."""
-    if not sweeps_focal(problem, profile):
-        return z
-    camera = problem.camera
-    i = problem.camera_gene("log_focal")
-    score = _scorer(objective, (10_009, 10_010, 10_011, 10_012))
-
+def _walk(problem: Problem, z: np.ndarray, i: int, step: float, points: int, label, profile: DiffProfile,
+          objective, score, on_eval, record) -> np.ndarray:
+    """The gene ``i`` held at ``z``'s value and at ``points`` values on either side, ``step``
+    apart, walking outwards with each point starting from its inner neighbour's result (a
+    continuation: the rest follows the held gene a step at a time), everything else given
+    ``focal_steps`` Adam steps under ``objective``; the point of lowest ``score`` (the same render
+    seeds for all) wins. ``label(value)`` names a point in the trace."""
     def held(start: np.ndarray, value: float) -> tuple[np.ndarray, float]:
         alt = start.copy()
         alt[i] = value
@@ -463,20 +453,42 @@ def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective
             x[i] = value
             return x
 
-        name = f"fov={np.degrees(fov_of(value, camera.fov0)):.1f}"
-        return _tried(problem, objective, alt, name, profile.focal_steps, profile, score, on_eval, record, clip)
+        return _tried(problem, objective, alt, label(value), profile.focal_steps, profile, score, on_eval, record,
+                      clip)
 
     centre = held(z, float(z[i]))
     tried = [centre]
     for direction in (-1, 1):
         point = centre
-        for k in range(1, profile.focal_sweep + 1):
-            value = float(z[i]) + direction * k * profile.focal_step
+        for k in range(1, points + 1):
+            value = float(z[i]) + direction * k * step
             if not problem.lower[i] <= value <= problem.upper[i]:
                 break
             point = held(point[0], value)
             tried.append(point)
     return min(tried, key=lambda t: t[1])[0]
+
+
+def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective,
+                on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
+    """For an unknown camera whose field of view is not given: a profile of the loss over the
+    focal length (:func:`_walk` over the focal gene, ``focal_sweep`` points either side,
+    ``focal_step`` apart), then, with ``pitch_sweep``, over the pitch from the winner. The loss
+    over the focal length is shallow (a few per cent between the truth's and a field of view 40 %
+    too wide, cup_1), too shallow for Adam to cross with everything else moving; and a far focal
+    length started from a point fitted to another scores worse than its own basin would, hence
+    the walk. The pitch trades with the shape along a valley Adam crawls (dev building_d3 and d4
+    stopped 0.25-0.35 degrees off with the true camera's basin 3-6 % lower in loss)."""
+    if not sweeps_focal(problem, profile):
+        return z
+    camera = problem.camera
+    score = _scorer(objective, (10_009, 10_010, 10_011, 10_012))
+    z = _walk(problem, z, problem.camera_gene("log_focal"), profile.focal_step, profile.focal_sweep,
+              lambda v: f"fov={np.degrees(fov_of(v, camera.fov0)):.1f}", profile, objective, score, on_eval, record)
+    if profile.pitch_sweep > 0:
+        z = _walk(problem, z, problem.camera_gene("pitch"), np.radians(profile.pitch_step), profile.pitch_sweep,
+                  lambda v: f"pitch={np.degrees(v):.2f}", profile, objective, score, on_eval, record)
+    return z
 
 
 def pitch_niche(problem: Problem, bins: int):
@@ -601,7 +613,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
              + sight_evaluations(problem, profile)
              + place_evaluations(problem, profile)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
-             + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1) * profile.focal_steps)
+             + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1 + 2 * profile.pitch_sweep
+                  + (profile.pitch_sweep > 0)) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
     state = {"stage": "memetic", "res": profile.memetic_res, "best": np.inf}
