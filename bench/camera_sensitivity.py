@@ -66,8 +66,7 @@ def main() -> None:
     mean = np.mean(list(record["iou"].values()), axis=0)
     record["mean"] = mean.tolist()
     print(f"{'mean':14s}" + "".join(f"{v:16.3f}" for v in mean))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.out, record)
+    write_json(args.out, record)  # atomically, its folder made
 
 
 if __name__ == "__main__":

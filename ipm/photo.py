@@ -182,9 +182,8 @@ def misplaced(vertices: np.ndarray, c2w_given: np.ndarray, fov_x: float, width: 
         return eye + ray * (-eye[1] / ray[1]), 0.5 * width / np.tan(0.5 * fov)
 
     given = np.asarray(c2w_given, np.float64)
-    c, s = np.cos(d_pitch), np.sin(d_pitch)
     wrong = given.copy()
-    wrong[:3, :3] = given[:3, :3] @ np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+    wrong[:3, :3] = given[:3, :3] @ attitude(d_pitch, 0.0)  # pitched down d_pitch more about its own x axis
     (here, f), (there, f_wrong) = ground(given, fov_x), ground(wrong, fov_x * (1.0 + fov_rel))
     eye = given[:3, 3]
     scale = np.linalg.norm(there - eye) / np.linalg.norm(here - eye) * f / f_wrong
