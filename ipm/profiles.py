@@ -213,6 +213,14 @@ class DiffProfile:
     With the field of view given (``pitch_starts``) not measured, so not run there."""
     pitch_step: float = 0.25
     """Grid step of ``pitch_sweep`` in degrees."""
+    pitch_scan: int = 0
+    """For a camera whose field of view is unknown (``ipm.photo``): after the polish, at the
+    memetic resolution, each finalist's pitch is held at its value and at this many points on
+    either side, ``pitch_scan_step`` degrees apart, walked as ``focal_sweep`` is (``focal_steps``
+    each; ``ipm.methods.diff.scan_pitch``), for a memetic stage that settles in a basin degrees
+    away from the truth's (dev cup_2: 7 degrees low, the true camera's basin 15 % lower); 0: none."""
+    pitch_scan_step: float = 2.0
+    """Grid step of ``pitch_scan`` in degrees."""
     read_counts: bool = True
     """Before each refinement stage, set the counts (storeys, windows per facade) to those the
     input views' class masks show on the facades they face (``ipm.facades``); needs class masks
