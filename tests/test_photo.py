@@ -337,40 +337,6 @@ def test_the_pitch_sweep_walks_the_pitch_after_the_focal_length():
     assert all(np.min(np.abs(grid - p)) < 1e-9 for p in pitches)
 
 
-def test_the_pitch_scan_reaches_a_basin_degrees_away_and_only_for_an_unknown_field_of_view():
-    """``pitch_scan`` holds the pitch on a coarse grid (``pitch_scan_step`` degrees) either side and
-    keeps the lowest loss, so a basin 6 degrees away is reached; with the field of view given it
-    leaves ``z`` alone (``pitch_starts`` serve there)."""
-    from dataclasses import replace
-
-    from ipm.generators import get_generator
-    from ipm.methods.diff import scan_pitch
-    from ipm.problem import POSE_NAMES, Problem
-    from ipm.profiles import get_profile
-
-    gen = get_generator("dishes")
-    profile = replace(get_profile("smoke"), focal_steps=3, pitch_scan=4, pitch_scan_step=2.0)
-    for fov_known in (False, True):
-        cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=fov_known, foot=(32.0, 60.0, 64, 64))
-        problem = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=cam)
-        z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.3)
-        j = problem.n_shape + len(POSE_NAMES)
-        target, pitches = z[j] + np.radians(6.0), []
-
-        def objective(x, seed=None):  # no gradient: only the grid moves the pitch
-            pitches.append(x[j])
-            return float((x[j] - target) ** 2), np.zeros_like(x)
-
-        out = scan_pitch(problem, z, profile, objective)
-        if fov_known:
-            assert np.array_equal(out, z) and not pitches
-        else:
-            assert out[j] == pytest.approx(target)
-            grid = z[j] + np.radians(2.0) * np.arange(-4, 5)
-            assert all(np.min(np.abs(grid - p)) < 1e-9 for p in pitches)
-            assert np.max(np.abs(np.array(pitches) - z[j])) == pytest.approx(np.radians(8.0))
-
-
 def test_pitch_niches_bin_an_unknown_cameras_pitch():
     """``pitch_bins`` equal bins over the pitch prior (ends open) for an unknown camera; one niche
     for a known camera or one bin."""

@@ -491,18 +491,6 @@ def sweep_focal(problem: Problem, z: np.ndarray, profile: DiffProfile, objective
     return z
 
 
-def scan_pitch(problem: Problem, z: np.ndarray, profile: DiffProfile, objective,
-               on_eval=lambda ind: None, record=lambda name, loss: None) -> np.ndarray:
-    """For an unknown camera whose field of view is not given: a coarse :func:`_walk` over the
-    pitch (``pitch_scan`` points either side, ``pitch_scan_step`` degrees apart) at the memetic
-    resolution, before the refinement: a basin degrees away is out of the fine walk's reach."""
-    if not sweeps_focal(problem, profile) or profile.pitch_scan <= 0:
-        return z
-    return _walk(problem, z, problem.camera_gene("pitch"), np.radians(profile.pitch_scan_step), profile.pitch_scan,
-                 lambda v: f"pitch={np.degrees(v):.1f}", profile, objective,
-                 _scorer(objective, (10_017, 10_018)), on_eval, record)
-
-
 def pitch_niche(problem: Problem, bins: int):
     """``z`` -> its bin of an unknown camera's pitch, ``bins`` equal bins over ``PITCH_PRIOR``
     (the ends open): the memetic stage's niches (``DiffProfile.pitch_bins``). Always 0 for a known
@@ -626,9 +614,7 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
              + place_evaluations(problem, profile)
              + (profile.refine_candidates - 1) * (profile.refine_iterations[0] + 1)
              + sweeps_focal(problem, profile) * (2 * profile.focal_sweep + 1 + 2 * profile.pitch_sweep
-                  + (profile.pitch_sweep > 0) + profile.refine_candidates * (2 * profile.pitch_scan
-                                                                              + (profile.pitch_scan > 0)))
-             * profile.focal_steps)
+                  + (profile.pitch_sweep > 0)) * profile.focal_steps)
     bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
     rows, t0 = [], time.perf_counter()
     state = {"stage": "memetic", "res": profile.memetic_res, "best": np.inf}
@@ -676,9 +662,6 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
     for ind in finalists(problem, final, profile.refine_candidates):
         z, settled = read(ind.best_z, state["res"])
         zs.append(polish(problem, objective, z, profile, on_eval, recorder("polish", state["res"]), settled))
-    if sweeps_focal(problem, profile) and profile.pitch_scan > 0:
-        state["stage"] = "scan"
-        zs = [scan_pitch(problem, z, profile, objective, on_eval, recorder("scan", state["res"])) for z in zs]
     checkpoint(zs[0])
     for stage, (res, iters) in enumerate(zip(profile.refine_res, profile.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(profile.refine_lod, least), profile)
