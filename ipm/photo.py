@@ -36,6 +36,10 @@ level to steeply above (the authors' and our cases' input views lie within it)."
 DEFAULT_FOV = np.radians(50.0)
 """The starting horizontal field of view when none is given: between a phone's main camera in
 portrait (about 50 degrees) and landscape (about 69)."""
+FOV_GRID = (25.0, 31.2, 38.7, 47.7, 58.2, 70.0)
+"""Horizontal fields of view (degrees) tried by ``ipm reconstruct --fov-grid`` without values
+(``DiffProfile.fov_grid``): six points geometric in tan(fov / 2) from a short telephoto's to a
+wide phone camera's."""
 
 
 def attitude(pitch, roll, xp=np):
@@ -77,6 +81,9 @@ class UnknownCamera:
     """Whether the field of view was given (then ``log_focal`` stays 0)."""
     foot: tuple[float, float, int, int] = (0.0, 0.0, 1, 1)
     """The mask's foot pixel (x, y: the lowest row's middle) and the image's width and height."""
+    fov_chosen: bool = False
+    """Whether the held field of view was chosen by the fit from a grid (``DiffProfile.fov_grid``)
+    rather than given."""
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the camera genes."""
@@ -128,7 +135,8 @@ class UnknownCamera:
         """The estimated camera for params.json (degrees, and its transform_matrix)."""
         pitch, roll, log_focal = (float(g) for g in genes)
         return {"pitch_deg": float(np.degrees(pitch)), "roll_deg": float(np.degrees(roll)),
-                "fov_x_deg": float(np.degrees(fov_of(log_focal, self.fov0))), "fov_given": self.fov_known,
+                "fov_x_deg": float(np.degrees(fov_of(log_focal, self.fov0))),
+                "fov_given": self.fov_known and not self.fov_chosen, "fov_from_grid": self.fov_chosen,
                 "transform_matrix": c2w(pitch, roll).tolist()}
 
 

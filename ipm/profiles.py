@@ -218,6 +218,21 @@ class DiffProfile:
     the walked losses differ by a few per cent and by noise, so it was removed."""
     pitch_step: float = 0.25
     """Grid step of ``pitch_sweep`` in degrees."""
+    fov_grid: tuple[float, ...] = ()
+    """For a camera whose field of view is unknown (``ipm.photo``): instead of estimating it,
+    fit once per field of view given here (horizontal, degrees) as if it were given (pitch starts,
+    the focal length held; ``ipm.methods.diff.fit_fov_grid``) and keep the fit of lowest loss at
+    the last refinement resolution; () (every profile): the field of view estimated in one fit.
+    With the focal length free the loss is nearly flat along focal length and pitch together, and
+    the cups' fits settle 6-10 degrees low; with it held, even a wrong one, the pitch's basin is
+    distinct (dev, field of view given 0.7-1.4 x the truth's focal length, seed 0: the lowest loss
+    of five within 1.4 degrees of the truth's pitch on cup_1, cup_2, cup_d1, cup_d2). With
+    ``ipm.photo.FOV_GRID`` (rule written before the runs: dev cups, seed 0, paired world IoU >=
+    +0.05 and a lower mean pitch error): cup_1 / cup_2 / cup_d1 / cup_d2 world IoU 0.549 / 0.177 /
+    0.244 / 0.018 -> 0.890 / 0.297 / 0.434 / 0.537, pitch error 1.3 / 6.8 / 5.9 / 9.8 -> 0.3 / 1.7
+    / 1.1 / 0.9 degrees; the field of view itself is still poorly told (-2 / -37 / -37 / -21 %:
+    the loss is nearly flat over it). Not a default: six fits' time, and the buildings were not
+    run with it (README)."""
     read_counts: bool = True
     """Before each refinement stage, set the counts (storeys, windows per facade) to those the
     input views' class masks show on the facades they face (``ipm.facades``); needs class masks
@@ -298,4 +313,6 @@ def get_profile(name: str, **overrides) -> DiffProfile:
         raise UserError(f"unknown renderer {prof.renderer!r} (known: {', '.join(RENDERERS)})")
     if prof.window_loss not in WINDOW_LOSSES:
         raise UserError(f"unknown window_loss {prof.window_loss!r} (known: {', '.join(WINDOW_LOSSES)})")
-    return prof
+    if not all(isinstance(f, (int, float)) and 1.0 <= f <= 170.0 for f in prof.fov_grid):  # also false for NaN
+        raise UserError(f"fov_grid: needs fields of view of 1 to 170 degrees, got {list(prof.fov_grid)}")
+    return replace(prof, fov_grid=tuple(float(f) for f in prof.fov_grid))

@@ -223,6 +223,58 @@ def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     assert len(runs) == 5  # without the field of view: one memetic stage
 
 
+def test_a_field_of_view_grid_keeps_the_fit_of_lowest_loss(tmp_path, tiny_case, monkeypatch):
+    """``fov_grid``: with the field of view withheld, one fit per grid value with it held (pitch
+    starts too), the lowest score kept and reported as chosen, not given; each value's score in
+    the trace."""
+    import pandas as pd
+
+    import ipm.methods.diff as diff
+    from ipm.methods import METHODS
+
+    held, real = [], diff.fit_at_fov
+
+    def spy(views, generator, prof, seed, progress, fov_deg):
+        out = real(views, generator, prof, seed, progress, fov_deg)
+        held.append((fov_deg, out[0].camera.fov_known, float(np.degrees(out[0].camera.fov0)), out[3]))
+        return out
+
+    monkeypatch.setattr(diff, "fit_at_fov", spy)
+    info = METHODS["photo"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes", profile="smoke",
+                            progress=False, fov_grid=(30.0, 55.0))
+    assert [(f, known) for f, known, *_ in held] == [(30.0, True), (55.0, True)]
+    assert all(f == pytest.approx(f0) for f, _, f0, _ in held)
+    kept = min(held, key=lambda h: h[3])
+    camera = info["camera"]
+    assert camera["fov_x_deg"] == pytest.approx(kept[0]) and camera["fov_from_grid"] and not camera["fov_given"]
+    trace = pd.read_csv(tmp_path / "out" / "trace.csv")
+    grid = trace[trace.stage == "fov grid"]
+    assert list(grid.origin) == ["fov=30", "fov=55"] and np.allclose(grid.loss, [h[3] for h in held])
+    assert np.isfinite(info["final_loss"])
+    # the field of view given: no grid
+    held.clear()
+    METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "given", generator="dishes", profile="smoke",
+                         progress=False, fov_grid=(30.0, 55.0))
+    assert held == []
+
+
+@pytest.mark.parametrize("values, match", [
+    (["nan"], "fov_grid: needs fields of view of 1 to 170"), (["0.5", "40"], "fov_grid: needs"),
+    (None, "--fov-grid applies to the diff path only")])
+def test_fov_grid_problems_are_one_line(tmp_path, tiny_case, capsys, values, match):
+    from ipm.cli import main
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    argv = ["reconstruct", "--generator", "dishes", "--image", str(tiny_case / frame["file_path"]),
+            "--mask", str(tiny_case / frame["mask_path"]), "--out", str(tmp_path / "out"), "--quiet",
+            "--fov-grid", *(values or [])]
+    if values is None:
+        argv += ["--method", "ga"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and len(err.splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
 def test_holding_closes_the_bounds_and_gives_them_back():
     from ipm.generators import get_generator
     from ipm.problem import Problem

@@ -702,12 +702,47 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
 
 
 def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, **overrides):
-    """The diff path on ``views``: the problem, its best ``z``, the trace and the profile."""
+    """The diff path on ``views``: the problem, its best ``z``, the trace and the profile (for a
+    camera of unknown field of view and a ``fov_grid``, :func:`fit_fov_grid`)."""
     check_generator("diff", generator)
     prof = get_profile(profile, **overrides)
+    if prof.fov_grid and views.camera is not None and not views.camera.fov_known:
+        return (*fit_fov_grid(views, generator, prof, seed, progress), prof)
     problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.max_tilt)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
     return problem, z, trace, prof
+
+
+def final_score(problem: Problem, views: Views, z: np.ndarray, prof: DiffProfile) -> float:
+    """Loss of ``z`` at the last refinement resolution over fixed render seeds: fits of the same
+    mask under different held cameras compared alike (:func:`fit_fov_grid`)."""
+    lod = max(prof.refine_lod, problem.generator.min_fit_lod)
+    return _scorer(Objective(problem, views, prof.refine_res[-1], lod, prof), (10_007, 10_008))(z)
+
+
+def fit_at_fov(views: Views, generator: str, prof: DiffProfile, seed: int, progress: bool,
+               fov_deg: float) -> tuple[Problem, np.ndarray, pd.DataFrame, float]:
+    """One point of :func:`fit_fov_grid`: the fit of ``views`` (an unknown camera) with its field
+    of view held at ``fov_deg``, and its :func:`final_score`."""
+    camera = replace(views.camera, fov0=float(np.radians(fov_deg)), fov_known=True, fov_chosen=True)
+    held = replace(views, fov_x=camera.fov0, camera=camera)
+    problem = Problem.for_views(get_generator(generator), held, max_tilt=prof.max_tilt)
+    z, trace = reconstruct(problem, held, prof, seed=seed, progress=progress)
+    return problem, z, trace, final_score(problem, held, z, prof)
+
+
+def fit_fov_grid(views: Views, generator: str, prof: DiffProfile, seed: int,
+                 progress: bool) -> tuple[Problem, np.ndarray, pd.DataFrame]:
+    """An unknown field of view chosen from ``prof.fov_grid``: a fit per value with it held
+    (:func:`fit_at_fov`, the same seed each), the one of lowest score kept; its trace gets a
+    ``fov grid`` row per value (the score as its loss, the fits' seconds summed)."""
+    fits = [fit_at_fov(views, generator, prof, seed, progress, f) for f in prof.fov_grid]
+    problem, z, trace, _ = min(fits, key=lambda fit: fit[3])
+    seconds = np.cumsum([float(fit[2]["seconds"].iloc[-1]) for fit in fits])
+    rows = pd.DataFrame({"stage": "fov grid", "res": prof.refine_res[-1], "eval": len(trace) + np.arange(len(fits)),
+                         "origin": [f"fov={f:g}" for f in prof.fov_grid], "loss": [fit[3] for fit in fits],
+                         "best": float(trace["best"].iloc[-1]), "seconds": seconds})
+    return problem, z, pd.concat([trace, rows], ignore_index=True)
 
 
 def write_result(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFrame, prof: DiffProfile,
