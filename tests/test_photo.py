@@ -209,8 +209,11 @@ def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, 
 def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     """``photo_fov``: view 0's mask with its field of view but not its camera; the field of view
     stays the given one, and the memetic stage runs once per pitch start (only when it is given)."""
+    import pandas as pd
+
     import ipm.methods.diff as diff
     from ipm.methods import METHODS
+    from ipm.profiles import get_profile
 
     runs, real = [], diff.memetic
     monkeypatch.setattr(diff, "memetic", lambda *a, **k: runs.append(1) or real(*a, **k))
@@ -219,8 +222,10 @@ def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     assert info["method"] == "photo_fov" and info["camera_error"]["fov_rel"] == pytest.approx(0.0, abs=1e-6)
     assert info["camera"]["fov_given"] and len(runs) == 4  # a free run and one per pitch start
     METHODS["photo"](tiny_case / "transforms.json", tmp_path / "bare", generator="dishes", profile="smoke",
-                     progress=False, pitch_starts=(10.0, 30.0, 50.0))
+                     progress=False, pitch_starts=(10.0, 30.0, 50.0), focal_sweep=1, focal_steps=2)
     assert len(runs) == 5  # without the field of view: one memetic stage
+    focal = pd.read_csv(tmp_path / "bare" / "trace.csv").query("stage == 'focal'")
+    assert len(focal) and set(focal["res"]) == {get_profile("smoke").refine_res[-1]}  # its steps' size too
 
 
 def test_a_field_of_view_grid_keeps_the_fit_of_lowest_loss(tmp_path, tiny_case, monkeypatch):

@@ -680,7 +680,8 @@ def reconstruct(problem: Problem, views: Views, profile: DiffProfile, seed: int 
             state["stage"] = "place"
             zs = [sweep_place(problem, z, profile, previous, objective, on_eval, recorder("place", res)) for z in zs]
         if stage == len(profile.refine_res) - 1 and sweeps_focal(problem, profile):
-            state["stage"] = "focal"
+            state.update(stage="focal", res=res)  # its steps run at this stage's size (decide's, sight's and
+            # place's at the one before)
             zs = [sweep_focal(problem, z, profile, objective, on_eval, recorder("focal", res)) for z in zs]
         refined = []
         for z in zs:
