@@ -175,8 +175,9 @@ def _run(args) -> int:
             photo_sheet(args.image, os.path.join(args.out, "mesh.ply"), info["camera"],
                         os.path.join(args.out, "overview.png"))
             cam = info["camera"]
+            chosen = " (chosen from the grid)" if cam.get("fov_from_grid") else ""
             print(f"{args.out}: camera pitch {cam['pitch_deg']:.1f} deg, roll {cam['roll_deg']:.1f} deg, "
-                  f"field of view {cam['fov_x_deg']:.1f} deg; figure in overview.png")
+                  f"field of view {cam['fov_x_deg']:.1f} deg{chosen}; figure in overview.png")
     elif args.command == "prepare":
         from ipm.generators import GENERATORS
         from ipm.methods import METHODS, check_generator

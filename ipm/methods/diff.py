@@ -737,7 +737,11 @@ def fit_fov_grid(views: Views, generator: str, prof: DiffProfile, seed: int,
     """An unknown field of view chosen from ``prof.fov_grid``: a fit per value with it held
     (:func:`fit_at_fov`, the same seed each), the one of lowest score kept; its trace gets a
     ``fov grid`` row per value (the score as its loss, the fits' seconds summed)."""
-    fits = [fit_at_fov(views, generator, prof, seed, progress, f) for f in prof.fov_grid]
+    fits = []
+    for k, f in enumerate(prof.fov_grid):
+        if progress:
+            tqdm.write(f"field of view {f:g} degrees ({k + 1} of {len(prof.fov_grid)})")
+        fits.append(fit_at_fov(views, generator, prof, seed, progress, f))
     problem, z, trace, _ = min(fits, key=lambda fit: fit[3])
     seconds = np.cumsum([float(fit[2]["seconds"].iloc[-1]) for fit in fits])
     rows = pd.DataFrame({"stage": "fov grid", "res": prof.refine_res[-1], "eval": len(trace) + np.arange(len(fits)),
