@@ -154,15 +154,14 @@ def _run(args) -> int:
             if not lo <= value <= hi:  # also false for NaN
                 raise UserError(f"{flag}: needs {lo:g} to {hi:g}{unit}, got {value}")
             extra[name] = value
+        for flag, value in (("--fov-grid", args.fov_grid), ("--renderer", args.renderer)):
+            if value is not None and args.method not in ("diff", "photo"):
+                raise UserError(f"{flag} applies to the diff path only")
         if args.fov_grid is not None:
             from ipm.photo import FOV_GRID
 
-            if args.method not in ("diff", "photo"):
-                raise UserError("--fov-grid applies to the diff path only")
             extra["fov_grid"] = tuple(args.fov_grid) or FOV_GRID  # checked by get_profile
         if args.renderer is not None:
-            if args.method not in ("diff", "photo"):
-                raise UserError("--renderer applies to the diff path only")
             extra["renderer"] = args.renderer
         views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
