@@ -34,6 +34,10 @@ MAX_TRIANGLES = 300_000
 metric ray-casts every reference 64 times and voxelises it)."""
 ELEVATION_RANGE = (10.0, 35.0)
 """Camera elevation of a sampled case's input view (degrees)."""
+FOV_RANGE = (25.0, 75.0)
+"""Horizontal field of view (degrees) of the cases that draw their lens (``fov_drawn``): from a
+phone's 3x telephoto to its main camera held landscape, geometric in tan(fov / 2). The other cases
+keep :data:`ipm.synth.FOV_X`."""
 SAMPLED = (
     ("cup_t1", "dishes", 1001, {"handle": True}, "test"),
     ("cup_t2", "dishes", 1002, {"handle": False}, "test"),
@@ -91,10 +95,20 @@ SAMPLED = (
     ("building_d42", "buildings", 5044, {}, "dev"),
     ("cup_d1", "dishes", 3001, {"handle": True}, "dev"),
     ("cup_d2", "dishes", 3002, {"handle": True}, "dev"),
+    ("cup_d3", "dishes", 3003, {"handle": True, "fov_drawn": True}, "dev"),
+    ("cup_d4", "dishes", 3004, {"handle": False, "fov_drawn": True}, "dev"),
+    ("building_d43", "buildings", 5045, {"fov_drawn": True}, "dev"),
+    ("building_d44", "buildings", 5046, {"fov_drawn": True}, "dev"),
+    ("cup_t5", "dishes", 1005, {"handle": True, "fov_drawn": True}, "test"),
+    ("cup_t6", "dishes", 1006, {"handle": False, "fov_drawn": True}, "test"),
+    ("building_t5", "buildings", 4005, {"fov_drawn": True}, "test"),
+    ("building_t6", "buildings", 4006, {"fov_drawn": True}, "test"),
 )
 """Sampled in-family cases: (name, generator, sampler seed, sampler options, split). The test
 cups alternate with and without a handle, so both topologies are scored; the dev split has
-sampled cups too, so settings are tuned on objects of the kind the test split scores."""
+sampled cups too, so settings are tuned on objects of the kind the test split scores. The cases
+with ``fov_drawn`` also draw their camera's field of view from :data:`FOV_RANGE` (the rest are
+rendered at 39.6 degrees), so that a field of view estimated from a photo is scored away from it."""
 
 
 def unit_distance(generator, x: np.ndarray, y: np.ndarray) -> float:
@@ -113,12 +127,14 @@ def preset_distances(generator, x: np.ndarray) -> dict[str, float]:
     return {name: round(unit_distance(generator, x, p), 4) for name, p in sorted(generator.presets.items())}
 
 
-def sample_case(name: str, generator: str, seed: int, split: str = "test", **options) -> dict:
+def sample_case(name: str, generator: str, seed: int, split: str = "test", fov_drawn: bool = False,
+                **options) -> dict:
     """A ``split`` case drawn from ``generator``'s family with ``seed``: parameters from
     ``Generator.sample(rng, **options)``, drawn again while nearer than
     :data:`MIN_PRESET_DISTANCE` to a preset or larger than :data:`MAX_TRIANGLES`; then a pose
-    (yaw 0-360 degrees, offsets up to 0.1, scale 0.85-1.15) and an input camera (any azimuth,
-    elevation in :data:`ELEVATION_RANGE`)."""
+    (yaw 0-360 degrees, offsets up to 0.1, scale 0.85-1.15), an input camera (any azimuth,
+    elevation in :data:`ELEVATION_RANGE`) and, with ``fov_drawn``, its field of view (last, so
+    that the draws before it do not depend on it)."""
     gen = get_generator(generator)
     rng = np.random.default_rng(seed)
     for draw in range(1, 1001):
@@ -147,6 +163,10 @@ def sample_case(name: str, generator: str, seed: int, split: str = "test", **opt
     }
     if generator == "dishes":
         case["texture_seed"] = int(rng.integers(100, 1000))
+    if fov_drawn:
+        lo, hi = np.log(np.tan(np.radians(FOV_RANGE) / 2))
+        case["camera"]["fov_deg"] = round(float(np.degrees(2 * np.arctan(np.exp(rng.uniform(lo, hi))))), 2)
+        case["sampler"]["fov_drawn"] = True
     return case
 
 
@@ -160,10 +180,11 @@ def case_split(case: dict) -> str:
 
 def describe_cases(split: str | None = None) -> str:
     """One line per case (``ipm cases``): name, split, generator, family (in: made by the generator,
-    with its distance to the nearest preset; out: the recipe that built it) and input elevation."""
-    from ipm.synth import list_cases, load_case
+    with its distance to the nearest preset; out: the recipe that built it), input elevation and
+    field of view."""
+    from ipm.synth import case_fov, list_cases, load_case
 
-    lines = [f"{'case':14} {'split':5} {'generator':9} {'family':34} elevation"]
+    lines = [f"{'case':14} {'split':5} {'generator':9} {'family':34} elevation  fov"]
     for name in list_cases():
         case = load_case(name)
         if split is not None and case_split(case) != split:
@@ -176,7 +197,8 @@ def describe_cases(split: str | None = None) -> str:
         else:
             family = f"in: preset {src.get('preset', 'defaults')}, edited"
         lines.append(f"{name:14} {case_split(case):5} {case['generator']:9} {family:34} "
-                     f"{case.get('camera', {}).get('elevation_deg', 22.0):.0f} deg")
+                     f"{case.get('camera', {}).get('elevation_deg', 22.0):>5.0f} deg  "
+                     f"{np.degrees(case_fov(case)):.1f} deg")
     return "\n".join(lines)
 
 

@@ -23,7 +23,8 @@ from datasets_synthetic.recipes import RECIPES
 from ipm.render.cameras import orbit_camera
 
 FOV_X = 0.6911
-"""Horizontal field of view of the reference cameras (radians), as in instant-ngp's examples."""
+"""Horizontal field of view of the reference cameras (radians), as in instant-ngp's examples,
+unless the case gives its own (``camera.fov_deg``)."""
 
 
 def list_cases() -> list[str]:
@@ -40,6 +41,17 @@ def load_case(name: str) -> dict:
         return json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise UserError(f"malformed case file {name}.json: {exc}") from None
+
+
+def case_fov(case: dict) -> float:
+    """The horizontal field of view of a case's cameras (radians): its ``camera.fov_deg``, else
+    :data:`FOV_X` (``UserError`` outside 1-170 degrees)."""
+    deg = case.get("camera", {}).get("fov_deg")
+    if deg is None:
+        return FOV_X
+    if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not 1.0 <= deg <= 170.0:  # NaN fails too
+        raise UserError(f"case {case.get('name')!r}: camera.fov_deg must be 1-170 degrees, got {deg!r}")
+    return float(np.radians(deg))
 
 
 def semantic_scheme(case: dict) -> tuple[dict, np.ndarray] | None:
@@ -90,9 +102,10 @@ so neighbouring images share enough texture for SIFT matching; the COLMAP views)
 
 
 def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float, elevation: float,
-                 layout: str = "hemi"):
-    """Camera-to-world matrices of ``n_views`` views around the object in ``layout``."""
-    dist = 1.3 * radius / np.sin(FOV_X / 2)
+                 layout: str = "hemi", fov_x: float = FOV_X):
+    """Camera-to-world matrices of ``n_views`` views around the object in ``layout``, far enough
+    that the bounding sphere fills the same share of a field of view ``fov_x`` at any lens."""
+    dist = 1.3 * radius / np.sin(fov_x / 2)
     if layout == "hemi":
         cams = [orbit_camera(center, dist, azimuth, elevation)]
         golden = np.pi * (3 - np.sqrt(5))
@@ -126,20 +139,21 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     v, f, labels, uv = ground_truth_mesh(spec)
     lo, hi = v.min(0), v.max(0)
     center, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
-    cam = spec.get("camera", {})
-    c2w = view_cameras(center, radius, n_views, cam.get("azimuth_deg", 0.0), cam.get("elevation_deg", 22.0), layout)
+    cam, fov = spec.get("camera", {}), case_fov(spec)
+    c2w = view_cameras(center, radius, n_views, cam.get("azimuth_deg", 0.0), cam.get("elevation_deg", 22.0), layout,
+                       fov)
     scheme, tree = semantic_scheme(spec), is_tree_case(spec)
     with atomic_dir(out) as tmp:
         if scheme:
             names, part_label = scheme
             top = max(names.values())
-            semantic = render_labels(v, f, part_label[labels] - 1, c2w, FOV_X, res, res, spp, n_parts=top)
+            semantic = render_labels(v, f, part_label[labels] - 1, c2w, fov, res, res, spp, n_parts=top)
         if tree:  # varied browns and greens that labels_from_rgb reads; masks = labelled pixels
-            rgb = render_tree_rgb(v, f, labels, c2w, FOV_X, res, res, spp, spec.get("texture_seed", 0))
+            rgb = render_tree_rgb(v, f, labels, c2w, fov, res, res, spp, spec.get("texture_seed", 0))
             masks = (semantic > 0).astype(np.float32)
         else:
-            rgb = render_rgb(v, f, uv, c2w, FOV_X, res, res, spec.get("texture_seed", 0), spp)
-            masks = SilhouetteRenderer(c2w, FOV_X, res, res, spp=16).render(v, f)
+            rgb = render_rgb(v, f, uv, c2w, fov, res, res, spec.get("texture_seed", 0), spp)
+            masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
         frames = []
         for i in tqdm(range(n_views), desc=f"synth {case}", disable=not progress, leave=False):
             save_rgb(tmp / "rgb" / f"{i:03d}.png", rgb[i])
@@ -149,7 +163,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             if scheme:
                 save_labels(tmp / "semantic" / f"{i:03d}.png", semantic[i], top)
                 frames[-1]["semantic_path"] = f"semantic/{i:03d}.png"
-        write_views(tmp / "transforms.json", FOV_X, res, res, frames, scheme[0] if scheme else None)
+        write_views(tmp / "transforms.json", fov, res, res, frames, scheme[0] if scheme else None)
         _write_reference(tmp, spec, v, f, labels)
 
 

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from ipm.cases import ELEVATION_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split, preset_distances, sample_case
-from ipm.cases import unit_distance
+from ipm.cases import ELEVATION_RANGE, FOV_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split, preset_distances
+from ipm.cases import sample_case, unit_distance
 from ipm.errors import UserError
 from ipm.generators import GENERATORS, get_generator
 from ipm.metrics.recovery import facade_match, parameter_recovery, seen_counts, true_parameters
@@ -25,6 +25,9 @@ def test_every_case_says_its_split_and_the_test_split_is_complete():
         assert sum(c["generator"] == gen and "recipe" in c["source"] for c in test) >= 2
     for c in test:
         assert ELEVATION_RANGE[0] <= c["camera"]["elevation_deg"] <= ELEVATION_RANGE[1]
+    for split in (dev, {n for n, s in splits.items() if s == "test"}):  # both splits score lenses other than 39.6
+        lenses = [cases[n]["camera"]["fov_deg"] for n in split if "fov_deg" in cases[n].get("camera", {})]
+        assert len(lenses) >= 4 and all(FOV_RANGE[0] <= f <= FOV_RANGE[1] for f in lenses)
     with pytest.raises(UserError, match="split must be one of dev, test"):
         case_split({"name": "x", "split": "train"})
 

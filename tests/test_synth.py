@@ -11,6 +11,7 @@ from ipm.errors import UserError
 from ipm.io import load_mesh, load_views
 from ipm.metrics import raycast_masks
 from ipm.synth import ground_truth_mesh, list_cases, load_case
+from tests.conftest import synthesized
 
 
 def test_case_files_are_complete():
@@ -59,6 +60,34 @@ def test_parts_sheet_shows_the_handle_in_its_colour(tmp_path, tiny_case):
     assert img.shape == (128, 192, 3)
     orange = (img[..., 0] - img[..., 2] > 60)  # the handle's colour; the body and background are grey
     assert orange[:64].sum() > 10 and orange[64:].sum() > 10
+
+
+def test_a_case_with_its_own_lens_is_rendered_through_it(tmp_path_factory, mitsuba_cpu):
+    """cup_d3 draws a 26.6-degree lens: transforms.json says so, the camera stands farther back by
+    the lens, and the masks still agree with an independent ray cast through that field of view."""
+    from ipm.synth import FOV_X, case_fov
+
+    case = load_case("cup_d3")
+    assert np.degrees(case_fov(case)) == pytest.approx(case["camera"]["fov_deg"])
+    folder = synthesized(tmp_path_factory, "cup_d3", n_views=2, res=64, spp=4)
+    views = load_views(folder / "transforms.json")
+    assert np.degrees(views.fov_x) == pytest.approx(case["camera"]["fov_deg"], abs=1e-6)
+    v, _, _, _ = ground_truth_mesh(case)
+    centre, radius = (v.min(0) + v.max(0)) / 2, np.linalg.norm(np.ptp(v, 0)) / 2
+    dist = np.linalg.norm(views.c2w[0][:3, 3] - centre)
+    assert dist == pytest.approx(1.3 * radius / np.sin(views.fov_x / 2), rel=1e-6)
+    assert dist > 1.3 * radius / np.sin(FOV_X / 2)
+    rc = raycast_masks(load_mesh(folder / "reference.ply"), list(views.c2w), res=64, fov_deg=np.degrees(views.fov_x))
+    for a, b in zip(views.masks > 0.5, rc):
+        assert (a & b).sum() / (a | b).sum() > 0.93
+
+
+@pytest.mark.parametrize("fov", [0.5, 171.0, float("nan"), "wide", True])
+def test_a_bad_case_lens_is_one_clear_error(fov):
+    from ipm.synth import case_fov
+
+    with pytest.raises(UserError, match="camera.fov_deg must be 1-170 degrees"):
+        case_fov({"name": "x", "camera": {"fov_deg": fov}})
 
 
 @pytest.mark.parametrize("n", [16, 64])
