@@ -124,5 +124,7 @@ def test_cases_lists_every_case_with_its_split():
     lines = res.stdout.strip().splitlines()[1:]
     assert all(" test " in ln for ln in lines) and any(ln.startswith("cup_goblet") for ln in lines)
     assert any("sampled" in ln and ln.startswith("tree_t1") for ln in lines)
+    assert any(ln.startswith("cup_t5") and ln.endswith("63.8 deg") for ln in lines)  # its own lens
+    assert any(ln.startswith("cup_t1") and ln.endswith("39.6 deg") for ln in lines)
     res = ipm("cases")
     assert res.returncode == 0 and any(ln.startswith("cup_1 ") and " dev " in ln for ln in res.stdout.splitlines())
