@@ -24,6 +24,7 @@ from PIL import Image
 
 from ipm.errors import UserError
 from ipm.io.views import Views, _read_mask
+from ipm.render.cameras import is_fov_deg, pixel_ray
 
 EYE = np.array([0.0, 1.0, 0.0])
 """The camera centre: one unit above the ground (the scale is the object's to choose)."""
@@ -181,7 +182,6 @@ def misplaced(vertices: np.ndarray, c2w_given: np.ndarray, fov_x: float, width: 
     radians more, its horizontal field of view ``fov_rel`` too wide. The ray through the ``foot``
     pixel then meets the ground elsewhere and the object keeps its size in the image, so the
     world IoU of the result is what the camera's error alone costs (``bench/camera_sensitivity.py``)."""
-    from ipm.render.cameras import pixel_ray
 
     def ground(cam, fov):
         eye, ray = pixel_ray(*foot, cam, fov, width, height)
@@ -231,7 +231,7 @@ def photo_views(image: str, mask: str | None = None, fov_deg: float | None = Non
             focal_35mm = img.getexif().get_ifd(0x8769).get(0xA405)  # Exif FocalLengthIn35mmFilm
     except (OSError, ValueError) as exc:
         raise UserError(f"cannot read image {path}: {exc}") from None
-    if fov_deg is not None and not 1.0 <= fov_deg <= 170.0:  # also false for NaN
+    if fov_deg is not None and not is_fov_deg(fov_deg):
         raise UserError(f"--fov: needs 1 to 170 degrees (horizontal), got {fov_deg}")
     if fov_deg is None and focal_35mm:
         fov_deg = float(np.degrees(exif_fov(float(focal_35mm), width, height)))

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from ipm.errors import UserError
+from ipm.render.cameras import is_fov_deg
 
 
 WINDOW_LOSSES = ("mse", "dice")
@@ -315,6 +316,6 @@ def get_profile(name: str, **overrides) -> DiffProfile:
         raise UserError(f"unknown renderer {prof.renderer!r} (known: {', '.join(RENDERERS)})")
     if prof.window_loss not in WINDOW_LOSSES:
         raise UserError(f"unknown window_loss {prof.window_loss!r} (known: {', '.join(WINDOW_LOSSES)})")
-    if not all(isinstance(f, (int, float)) and 1.0 <= f <= 170.0 for f in prof.fov_grid):  # also false for NaN
+    if not all(is_fov_deg(f) for f in prof.fov_grid):
         raise UserError(f"fov_grid: needs fields of view of 1 to 170 degrees, got {list(prof.fov_grid)}")
     return replace(prof, fov_grid=tuple(float(f) for f in prof.fov_grid))

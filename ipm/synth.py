@@ -20,7 +20,7 @@ from ipm.generators import get_generator
 from ipm.io import atomic_dir, save_ply, write_json
 from ipm.io.views import save_mask, save_rgb, write_views
 from datasets_synthetic.recipes import RECIPES
-from ipm.render.cameras import orbit_camera
+from ipm.render.cameras import is_fov_deg, orbit_camera
 
 FOV_X = 0.6911
 """Horizontal field of view of the reference cameras (radians), as in instant-ngp's examples,
@@ -49,7 +49,7 @@ def case_fov(case: dict) -> float:
     deg = case.get("camera", {}).get("fov_deg")
     if deg is None:
         return FOV_X
-    if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not 1.0 <= deg <= 170.0:  # NaN fails too
+    if not is_fov_deg(deg):
         raise UserError(f"case {case.get('name')!r}: camera.fov_deg must be 1-170 degrees, got {deg!r}")
     return float(np.radians(deg))
 

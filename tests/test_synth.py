@@ -33,6 +33,13 @@ def test_ground_truths_are_closed_and_upright(case):
     assert len(labels) == len(f) and len(uv) == len(v)
 
 
+def _assert_masks_match_raycast(ref, views) -> None:
+    """Mitsuba's masks agree with an independent ray caster through the transforms.json cameras."""
+    rc = raycast_masks(ref, list(views.c2w), res=views.masks.shape[-1], fov_deg=np.degrees(views.fov_x))
+    for a, b in zip(views.masks > 0.5, rc):
+        assert (a & b).sum() / (a | b).sum() > 0.93
+
+
 def test_synth_writes_consistent_views(tiny_case):
     views = load_views(tiny_case / "transforms.json")
     assert len(views) == 2 and views.masks.shape == (2, 64, 64)
@@ -42,10 +49,7 @@ def test_synth_writes_consistent_views(tiny_case):
     # the input view looks down at 15-30 degrees
     forward = -views.c2w[0][:3, 2]
     assert 15.0 <= np.degrees(np.arcsin(-forward[1])) <= 30.0
-    # Mitsuba's masks agree with an independent ray caster through the transforms.json cameras
-    rc = raycast_masks(ref, list(views.c2w), res=64, fov_deg=np.degrees(views.fov_x))
-    for a, b in zip(views.masks > 0.5, rc):
-        assert (a & b).sum() / (a | b).sum() > 0.93
+    _assert_masks_match_raycast(ref, views)
 
 
 def test_parts_sheet_shows_the_handle_in_its_colour(tmp_path, tiny_case):
@@ -77,9 +81,7 @@ def test_a_case_with_its_own_lens_is_rendered_through_it(tmp_path_factory, mitsu
     dist = np.linalg.norm(views.c2w[0][:3, 3] - centre)
     assert dist == pytest.approx(1.3 * radius / np.sin(views.fov_x / 2), rel=1e-6)
     assert dist > 1.3 * radius / np.sin(FOV_X / 2)
-    rc = raycast_masks(load_mesh(folder / "reference.ply"), list(views.c2w), res=64, fov_deg=np.degrees(views.fov_x))
-    for a, b in zip(views.masks > 0.5, rc):
-        assert (a & b).sum() / (a | b).sum() > 0.93
+    _assert_masks_match_raycast(load_mesh(folder / "reference.ply"), views)
 
 
 @pytest.mark.parametrize("fov", [0.5, 171.0, float("nan"), "wide", True])

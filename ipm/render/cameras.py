@@ -8,6 +8,17 @@ import numpy as np
 _GL_TO_MI = np.diag([-1.0, 1.0, -1.0, 1.0])
 
 
+FOV_LIMITS_DEG = (1.0, 170.0)
+"""The horizontal fields of view (degrees) a camera given to us may have: a case's lens, ``--fov``,
+a ``fov_grid`` value."""
+
+
+def is_fov_deg(value) -> bool:
+    """Whether ``value`` is a number (not a bool) of degrees within :data:`FOV_LIMITS_DEG` (NaN is not)."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and FOV_LIMITS_DEG[0] <= value <= FOV_LIMITS_DEG[1])
+
+
 def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     """OpenGL camera-to-world matrix of a camera at ``eye`` looking at ``target``."""
     eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
