@@ -119,7 +119,7 @@ def describe(objective, g, reference, options) -> dict:
 
 def aggregate(dirs: list[str], out: Path) -> dict:
     """Per-seed values and means of every algorithm over the runs in ``dirs`` (their summary.json)."""
-    from ipm.io import write_json
+    from ipm.io import shown_path, write_json
 
     runs = [json.loads((Path(d) / "summary.json").read_text()) for d in dirs]
     algs: dict = {}
@@ -135,7 +135,7 @@ def aggregate(dirs: list[str], out: Path) -> dict:
             a[f"std_{k}"] = float(np.std(a[k]))
         a["worst_loss"], a["worst_iou64"] = float(np.max(a["loss"])), float(np.min(a["iou64"]))
     out_d = {"case": runs[0]["case"], "budget": runs[0]["budget"],
-             "statistics_evaluations": runs[0].get("statistics_evaluations"), "runs": [str(d) for d in dirs],
+             "statistics_evaluations": runs[0].get("statistics_evaluations"), "runs": [shown_path(d) for d in dirs],
              "algorithms": algs}
     if "ga" in algs:
         out_d["ga_over_peer_mean_similarity"] = {
@@ -208,12 +208,12 @@ def run_seed(objective, settings, stats, stats_path, stats_cost, reference, opti
     the peers with the two together; writes ``out/summary.json``, ``curves.csv``, ``curves.png``."""
     import pandas as pd
 
-    from ipm.io import write_json
+    from ipm.io import shown_path, write_json
 
     out.mkdir(parents=True, exist_ok=True)
     summary = {"case": args.case, "profile": args.profile, "budget": args.budget + stats_cost,
                "ga_search_evaluations": args.budget, "statistics_evaluations": stats_cost, "seed": seed,
-               "statistics": str(stats_path), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
+               "statistics": shown_path(stats_path), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
                "threads": args.threads, "algorithms": {}}
     curves = {}
     for name in args.algorithms:

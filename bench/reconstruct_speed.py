@@ -14,8 +14,8 @@ Iterations: one loss and gradient of the first case's input view at the refineme
 class mask (buildings' windows), a population costs its size in single calls. ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine
 lacks); ``--keep DIR`` keeps each case's reference and reconstructions there, for ``ipm evaluate``
 on another machine. Prints a table and writes the numbers as JSON (with the machine's description).
-Targets (issues 2, 11, 13): a default-profile cup or building within 5 minutes on 2 CPU cores; the
-JAX renderer's cup at most 0.4 x the Mitsuba path's time; a population of 16 at most 4 x one.
+Targets it checks: a default-profile cup or building within 5 minutes on 2 CPU cores; the JAX
+renderer's cup at most 0.4 x the Mitsuba path's time; a population of 16 at most 4 x one.
 """
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
-"""Captures in other frames and formats, brought to the scene convention (DESIGN.md: y up, the
-object standing on y = 0): z-up or tilted worlds (nerfstudio, colmap2nerf, instant-ngp) and
-COLMAP sparse models (through pycolmap). The result is an ordinary :class:`Views` whose
-``world_from_input`` maps the input's world to ours, so a reconstruction can be taken back."""
+"""Captures in other frames and formats, brought to the scene convention (``docs/design``,
+"Scene convention": y up, the object standing on y = 0): z-up or tilted worlds (nerfstudio,
+colmap2nerf, instant-ngp) and COLMAP sparse models (through pycolmap). The result is an ordinary
+:class:`Views` whose ``world_from_input`` maps the input's world to ours, so a reconstruction can
+be taken back."""
 from __future__ import annotations
 
 from dataclasses import replace

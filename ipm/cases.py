@@ -216,5 +216,7 @@ def write_sampled_cases(folder: str | Path) -> list[Path]:
 
 if __name__ == "__main__":  # python -m ipm.cases [FOLDER]: (re)write the sampled case files
     folder = sys.argv[1] if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "datasets_synthetic"
+    from ipm.io.paths import shown_path
+
     for p in write_sampled_cases(folder):
-        print(p, json.loads(p.read_text())["sampler"]["min_preset_distance"])
+        print(shown_path(p), json.loads(p.read_text())["sampler"]["min_preset_distance"])

@@ -1,4 +1,4 @@
-"""``ipm``: the command line (DESIGN.md, "Command-line contract").
+"""``ipm``: the command line (``docs/design``, "Command line").
 
 Bad input ends with one line on stderr and exit code 2; set ``IPM_DEBUG=1`` for tracebacks.
 A baseline that ran but produced no mesh (COLMAP registering too few images) exits with 3.

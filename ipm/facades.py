@@ -3,7 +3,7 @@ sees (the counts a person reads off a photo of a house).
 
 From one view the silhouette says nothing about windows, and the window-mask loss compares
 counts badly: a window count one off trades against the windows' widths and margins, and a few
-Adam steps per count value do not settle which is right (issue 11's notes). The mask itself shows
+Adam steps per count value do not settle which is right. The mask itself shows
 them: sampled on the facade plane of the current estimate (pose and footprint, which the silhouette
 fixes well), each storey is a row of window blobs and each facade's blobs per row are its count.
 """

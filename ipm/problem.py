@@ -27,7 +27,8 @@ CAMERA_NAMES = ("pitch", "roll", "log_focal")
 POSE_LOWER = np.array([-np.inf, 0.0, 0.0, -1.5, 0.0, -1.5, -2.5])
 POSE_UPPER = np.array([np.inf, 0.0, 0.0, 1.5, 0.0, 1.5, 2.5])
 """Pose bounds; the tilts' bounds are set per problem (``Problem(max_tilt=)``). ``dy`` is held at 0:
-the object stands on y = 0 (DESIGN.md; ``Problem(free_height=)`` where the ground was estimated).
+the object stands on y = 0 (``docs/design``, "Scene convention"; ``Problem(free_height=)`` where
+the ground was estimated).
 This prior is what resolves most of the single-view ambiguity
 between distance along the ray and scale: with the base free to float 3 % of the height, a
 workflow run ended 3 cm below the ground and 7 cm off along the ray (cup_1 IoU 0.83)."""

@@ -1,7 +1,8 @@
 """Reference lines of the table, computed from the reference itself (not reconstructions).
 
-Silhouette IoU has a small range (DESIGN.md): the reference's convex hull and its bounding
-sphere show where "shape-agnostic" answers already land, so method rows can be read against them.
+Silhouette IoU has a small range (``docs/design``, "The metric"): the reference's convex hull
+and its bounding sphere show where "shape-agnostic" answers already land, so method rows can be
+read against them.
 For in-family cases of a stochastic generator (trees place leaves by their own random stream),
 ``reseeded_truth`` is the truth's parameters and pose with another seed: what a fit that recovers
 every parameter but the random stream would score.

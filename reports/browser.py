@@ -12,6 +12,8 @@ import json
 import time
 from pathlib import Path
 
+from ipm.io.paths import shown_path
+
 CHROMIUM = "/usr/bin/chromium"
 """The browser Playwright drives (never downloaded)."""
 ARGS = ("--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--no-sandbox")
@@ -77,7 +79,7 @@ def check_report(html: str, out_dir: str, expected_rows: list[str]) -> dict:
     missing = [r for r in expected_rows if r not in rows]
     broken = [im for im in images if not im["ok"]]
     failed = [m for m in models if not m["ok"]]
-    result = {"html": str(path), "seconds": round(time.monotonic() - start, 1), "errors": errors,
+    result = {"html": shown_path(html), "seconds": round(time.monotonic() - start, 1), "errors": errors,
               "rows_found": rows, "rows_missing": missing, "images_ok": len(images) - len(broken),
               "images_broken": broken, "models_loaded": len(models) - len(failed), "models_failed": failed,
               "screenshots": shots}

@@ -138,8 +138,10 @@ def _run(name: str, known: bool, views_path, out, profile: str, seed: int, progr
 
     pycolmap.set_random_seed(int(seed))
     stages = _Stages(name, ["sift", "match", "triangulate" if known else "sfm", "poisson"], progress)
+    workspace = None
     try:
         with tempfile.TemporaryDirectory(prefix="ipm_colmap_") as tmp, quiet_colmap(False):
+            workspace = tmp
             ws = make_workspace(views, Path(tmp))  # UserError on missing rgb files
             stages("sift")
             _colmap_stage(extract, ws, views, prof["max_features"], prof["first_octave"])
@@ -163,7 +165,8 @@ def _run(name: str, known: bool, views_path, out, profile: str, seed: int, progr
             raise _Failed(f"Poisson: {exc}") from None
     except _Failed as exc:
         stages.close()
-        return write_failure(out, t0, {**info, "stage_seconds": stages.seconds}, str(exc))
+        reason = str(exc) if workspace is None else str(exc).replace(workspace, "<COLMAP workspace>")
+        return write_failure(out, t0, {**info, "stage_seconds": stages.seconds}, reason)
     except BaseException:
         stages.close()
         raise

@@ -1,4 +1,5 @@
-"""Dishes generator (paper, Figure 5; the authors' 53-parameter layout in DESIGN.md).
+"""Dishes generator (paper, Figure 5; the authors' 53-parameter layout: ``docs/design``,
+"Generators").
 
 1. a profile spline from 9 radial offsets at equally spaced heights;
 2. a closed profile: outer wall, flat rim, inner wall (constant thickness), inner and outer bottom;

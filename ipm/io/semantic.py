@@ -1,5 +1,6 @@
-"""Semantic label images: trees 0 = background, 1 = branch, 2 = foliage (DESIGN.md); buildings
-0 = background, 1 = wall, 2 = window, 3 = roof, 4 = door (``BUILDING_LABELS``).
+"""Semantic label images (``docs/design``, "Semantic label images"): trees 0 = background,
+1 = branch, 2 = foliage; buildings 0 = background, 1 = wall, 2 = window, 3 = roof, 4 = door
+(``BUILDING_LABELS``).
 
 The tree similarity loss (``ipm.losses.tree``) compares such images. A reference photo becomes
 one by colour alone, as the paper does "in simple cases" ("green corresponds to leaves, brown or

@@ -1,4 +1,4 @@
-"""Views in the instant-ngp / nerfstudio ``transforms.json`` format (see DESIGN.md).
+"""Views in the instant-ngp / nerfstudio ``transforms.json`` format (``docs/design``, "Inputs").
 
 Camera-to-world matrices use the OpenGL convention: the camera looks down its -z,
 +y is up in the image, +x right; the principal point is the image centre.

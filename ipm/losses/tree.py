@@ -12,7 +12,7 @@ That ``Loss`` is a similarity (1 = identical), so the value to *minimise* here i
     tree_loss = 1 - TSim * prod(multipliers)        (in [0, 1], 0 = identical).
 
 **Stripes.** The image is cut into horizontal stripes (the paper: 20-30; the authors' impostors:
-256 px cut into 16 px stripes, DESIGN.md); per stripe ``i`` the paper takes
+256 px cut into 16 px stripes, ``docs/design``, "Tree GA"); per stripe ``i`` the paper takes
 
 - ``[a_i, d_i]`` crown borders: left edge of the leftmost and right edge of the rightmost
   column holding any branch or foliage pixel;

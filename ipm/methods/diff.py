@@ -53,10 +53,10 @@ def make_renderer(name: str, c2w: np.ndarray, fov_x: float, width: int, height: 
                   mitsuba_tuned: bool = False):
     """The silhouette renderer ``name`` (``DiffProfile.renderer``) for these cameras: ``auto`` is
     the JAX one (``ipm.render.edges``; with a class-mask term too: buildings' window masks agree
-    with Mitsuba's on the dev split within the seeds' spread, README) unless the path's settings
-    were tuned with Mitsuba (``mitsuba_tuned``: a camera whose field of view is unknown too,
-    ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated there on the dev
-    split. With the field of view given, the pitch starts were measured with JAX)."""
+    with Mitsuba's on the dev split within the seeds' spread, docs/decisions.md, "Renderer auto")
+    unless the path's settings were tuned with Mitsuba (``mitsuba_tuned``: a camera whose field of
+    view is unknown too, ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated
+    there on the dev split. With the field of view given, the pitch starts were measured with JAX)."""
     if name == "jax" or (name == "auto" and not mitsuba_tuned):
         return EdgeRenderer(c2w, fov_x, width, height, spp)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)

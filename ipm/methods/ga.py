@@ -52,7 +52,7 @@ import numpy as np
 from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.generators.base import Generator, Mesh, make_spec, vertex_normals
-from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
+from ipm.io import atomic_dir, load_views, save_glb, save_ply, shown_path, write_json
 from ipm.io.views import Views
 from ipm.methods import method
 from ipm.optim.ga import GASettings, GeneStatistics, TreeGA, collect_statistics, get_settings
@@ -623,7 +623,7 @@ def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "tr
     if prepared is not None:
         stats = GeneStatistics.load(prepared)
         stats.check(objective.genome.spec)
-        stats_source = str(prepared)
+        stats_source = shown_path(prepared)
     else:
         stats = generator_statistics(gen, settings, opts, seed, progress)
         stats_source = "collected"

@@ -70,7 +70,7 @@ CAMERA_COLUMNS = ("camera_pitch_err_deg", "camera_fov_err_pct")
 def camera_recovery(params: dict | None) -> dict:
     """For a fit whose camera was withheld (the ``photo`` row: ``camera_error`` in its params.json,
     ``ipm.photo.camera_errors``): the absolute pitch error in degrees and the absolute field-of-view
-    error in percent, the issue's criteria (3 degrees, 10 %); empty otherwise. A pitch error moves
+    error in percent, judged against 3 degrees and 10 %; empty otherwise. A pitch error moves
     the object along the ground and scales it in the world (``ipm.photo.registration``), so this
     tells a misplaced good shape (``shape_iou`` high, ``iou_mean`` low) from a bad one."""
     err = (params or {}).get("camera_error")

@@ -67,15 +67,18 @@ class GASettings:
 
     budget: int = 5000
     """Loss evaluations of the whole tree, after the statistics (5000: the authors' code configuration,
-    DESIGN.md; the paper's text gives a limit of 50 000 for trees and 5000 for its memetic stage)."""
+    ``docs/design``, "Tree GA"; the paper's text gives a limit of 50 000 for trees and 5000 for
+    its memetic stage)."""
     depth: int = 2
     """Levels above the leaves: ``2**depth`` leaves, ``2**(depth+1) - 1`` elementary GAs. The
     paper's figure shows a binary tree but no size; 2 (4 leaves, 7 GAs) leaves each GA about 13
     generations at the paper's budget."""
     initial_population: int = 125
-    """Random individuals of a leaf's first generation (DESIGN.md)."""
+    """Random individuals of a leaf's first generation (the authors' code: ``docs/design``,
+    "Tree GA")."""
     max_population: int = 100
-    """Population after each generation: survivors plus children (DESIGN.md)."""
+    """Population after each generation: survivors plus children (the authors' code: ``docs/design``,
+    "Tree GA")."""
     mutation_chance: float = 0.5
     """``M_chance``: probability that a child is mutated (not given in the paper)."""
     mutation_genes: float = 0.1
@@ -144,9 +147,9 @@ GA_PROFILES = {
 }
 """Named GA settings.
 
-- ``paper``: the authors' code configuration (DESIGN.md: populations 125/100, 5000 evaluations;
-  the paper's text gives 50 000 evaluations for trees) and the paper's 500
-  mutants per mutation; the values the paper does not give (depth, B, M_chance, M_genes, h,
+- ``paper``: the authors' code configuration (``docs/design``, "Tree GA": populations
+  125/100, 5000 evaluations; the paper's text gives 50 000 evaluations for trees) and the
+  paper's 500 mutants per mutation; the values the paper does not give (depth, B, M_chance, M_genes, h,
   eps, sample size) are the field defaults of :class:`GASettings`.
 - ``default``: 2500 evaluations, half the authors' configuration. On tree_1 / tree_2 (one view, seed 0) 5000
   lower the final loss from 0.541 / 0.481 to 0.506 / 0.382 but not the 64-view IoU (0.686 /

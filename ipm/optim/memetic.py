@@ -1,6 +1,7 @@
 """The paper's memetic algorithm: a GA over presets and discrete parameters with Adam inside.
 
-Per generation (DESIGN.md, the authors' settings are ``ipm.profiles.PROFILES["paper"]``):
+Per generation (``docs/design``, "Memetic search"; the authors' settings are
+``ipm.profiles.PROFILES["paper"]``):
 1. Adam local search; the generation's steps are shared by quality
    ``q = (1 / (0.001 + err)) ** (1 + 0.2 it) * exp(-0.005 stall)`` (``stall``: steps since the
    individual last improved by 1 %); a step whose loss exceeds ``reject_ratio`` times the

@@ -1,4 +1,5 @@
-"""Semantic label images of part-labelled meshes: 0 background, 1 + part label (DESIGN.md).
+"""Semantic label images of part-labelled meshes: 0 background, 1 + part label (``docs/design``,
+"Semantic label images").
 
 Two renderers of the same images, for two jobs:
 

@@ -1,4 +1,4 @@
-"""Differentiable silhouettes with Mitsuba 3 (DESIGN.md, "Silhouette rendering").
+"""Differentiable silhouettes with Mitsuba 3 (``docs/design``, "Silhouette rendering").
 
 The mesh is an area emitter of radiance 1 and there is no other light, so the rendered
 image is the mask (pixel coverage). With further face groups (a building's windows, its roof)
