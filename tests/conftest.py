@@ -2,14 +2,24 @@
 from __future__ import annotations
 
 import os
+import tempfile
 
-# no persistent compilation cache in the tests (cold, as on a fresh machine): twice a full run hung
-# for good in JAX deserialising a cached program at the same test, which passes alone
-os.environ.setdefault("IPM_JAX_CACHE", "off")
+# JAX's persistent compilation cache in a fresh folder for this run, shared by the test workers and
+# the processes the tests start (the CLI, the smoke DAG's jobs): a program compiled once is read
+# back everywhere else, as in the workflow, and nothing from an earlier run is used. The
+# controller made it and removes it at the end (pytest_unconfigure); workers inherit it.
+if "IPM_JAX_CACHE" not in os.environ:
+    os.environ["IPM_JAX_CACHE"] = tempfile.mkdtemp(prefix="ipm-test-jax-")
+    _OWN_CACHE = os.environ["IPM_JAX_CACHE"]
+else:
+    _OWN_CACHE = None
 
 from ipm.runtime import configure_threads  # noqa: E402
 
-configure_threads(2)  # before anything imports jax
+THREADS = max(1, min(2, len(os.sched_getaffinity(0)) // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
+"""Threads of a test process: 2, or its share of the CPUs where test workers run side by side."""
+
+configure_threads(THREADS)  # before anything imports jax
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
@@ -37,7 +47,7 @@ def variant(request):
     import mitsuba as mi
 
     mi.set_variant(request.param)
-    dr.set_thread_count(2)
+    dr.set_thread_count(THREADS)
     yield request.param
     dr.flush_malloc_cache()
 
@@ -47,7 +57,7 @@ def mitsuba_cpu():
     """Mitsuba on the LLVM backend (for tests that need rendering, not a variant sweep)."""
     from ipm.runtime import set_mitsuba_variant
 
-    return set_mitsuba_variant("cpu", 2)
+    return set_mitsuba_variant("cpu", THREADS)
 
 
 _SLOW_S = 60.0
@@ -83,6 +93,16 @@ def _release_compiled_code(request):
         _session["peak"] = (held, _mappings(), request.node.name)
 
 
+def slow_except(values, *fast):
+    """``values`` for ``pytest.mark.parametrize``, each marked ``slow`` unless its first element is
+    in ``fast``: the fast tier (``-m "not slow"``) keeps those, the full suite runs every one."""
+    def first(v):
+        return v[0] if isinstance(v, tuple) else v
+
+    return [v if first(v) in fast else pytest.param(*(v if isinstance(v, tuple) else (v,)), marks=pytest.mark.slow)
+            for v in values]
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)
@@ -107,6 +127,34 @@ def pytest_configure(config):
     import time
 
     _session.update(config=config, start=time.monotonic())
+
+
+def pytest_unconfigure(config):
+    if _OWN_CACHE is not None:
+        import shutil
+
+        shutil.rmtree(_OWN_CACHE, ignore_errors=True)
+
+
+MAX_WORKERS = 4
+"""``-n auto`` (pyproject's addopts) starts one worker per CPU up to this many: each worker holds
+JAX, Mitsuba and open3d (a few GiB), and the modules that fit most are few."""
+
+
+def pytest_xdist_auto_num_workers(config):
+    return max(1, min(len(os.sched_getaffinity(0)), MAX_WORKERS))
+
+
+FIRST_MODULE = "test_workflow.py"
+"""Runs first: its smoke run of the whole DAG takes minutes, longer than any other module."""
+
+
+def pytest_collection_modifyitems(config, items):
+    """The workflow's module first, then the other modules with slow tests, then the rest (each
+    module goes to one worker whole, ``--dist loadfile``): the long ones start while the short
+    ones fill the other workers, instead of ending the run alone."""
+    has_slow = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: (item.path.name != FIRST_MODULE, item.path not in has_slow))
 
 
 def pytest_runtest_logreport(report):

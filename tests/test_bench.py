@@ -1,4 +1,4 @@
-"""The benchmark scripts' own arithmetic (their timings live in bench/RESULTS.md, not here)."""
+"""The benchmark scripts' own arithmetic (their timings live in docs/results.md, not here)."""
 from __future__ import annotations
 
 import importlib.util

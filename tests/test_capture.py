@@ -165,6 +165,7 @@ def test_colmap_input_problems_are_clear(tmp_path, cup_views, problem, match):
         open_views(**args)
 
 
+@pytest.mark.slow
 def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
     """Smoke profile through the command line: a z-up transforms.json with --up z and a COLMAP
     model; the params say how to take the mesh back to the input's world."""
@@ -185,6 +186,7 @@ def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
     assert "--colmap needs --images" in _one_line_error(res) and not (tmp_path / "bad").exists()
 
 
+@pytest.mark.slow
 def test_a_nerfstudio_file_with_alpha_masks_reconstructs(tmp_path, cup_views):
     """nerfstudio's fields (fl_x, fl_y, cx, cy per frame, no camera_angle_x, no w/h) and RGBA
     photos whose alpha is the mask (no mask_path): loads as the original and reconstructs."""

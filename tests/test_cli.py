@@ -76,6 +76,7 @@ def test_evaluate_and_reference_line_commands(tmp_path, tiny_case):
     assert 0.8 < m["iou_mean"] < 1.0 and m["viou"] < 1.0  # the hull fills the cup and its handle hole
 
 
+@pytest.mark.slow
 def test_methods_refuse_generators_and_stages_they_cannot_use(tmp_path, tiny_case):
     views = str(tiny_case / "transforms.json")
     res = ipm("reconstruct", "--method", "diff", "--generator", "trees", "--views", views, "--out", str(tmp_path / "r"))

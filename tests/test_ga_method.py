@@ -176,10 +176,11 @@ def test_ga_on_a_tree_writes_a_placed_two_part_mesh(tree_run, tree_case):
     iou = silhouette_iou(ref, mesh, n_views=16, res=64)["iou_mean"]
     sphere = silhouette_iou(ref, bounding_sphere(ref), n_views=16, res=64)["iou_mean"]
     # 120 evaluations on a 96 px view are a smoke budget: over seeds 0-5 the margin is 0.04-0.19
-    # (seed 2: 0.17); the targets are measured on the default profile in the DAG
+    # (seed 2: 0.17); the quality targets are measured on the default profile in the DAG
     assert iou > sphere + 0.1, (iou, sphere)
 
 
+@pytest.mark.slow
 def test_ga_is_deterministic(tmp_path, tree_case, tree_stats):
     from ipm.methods.ga import run_ga
 
@@ -187,7 +188,7 @@ def test_ga_is_deterministic(tmp_path, tree_case, tree_stats):
               ga_settings={"budget": 40, "initial_population": 8})
     a = run_ga(tree_case / "transforms.json", tmp_path / "a", **kw)
     b = run_ga(tree_case / "transforms.json", tmp_path / "b", **kw)
-    assert a == b and a["evaluations"] == 40 and a["statistics"] == str(tree_stats)
+    assert a == b and a["evaluations"] == 40 and a["statistics"] == tree_stats.name  # no absolute path in an output
     assert (tmp_path / "a" / "params.json").read_text() == (tmp_path / "b" / "params.json").read_text()
     traces = [pd.read_csv(tmp_path / r / "trace.csv").drop(columns="seconds") for r in "ab"]  # wall time differs
     assert traces[0].equals(traces[1])

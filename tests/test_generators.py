@@ -9,6 +9,7 @@ import trimesh
 
 from ipm.errors import UserError
 from ipm.generators import GENERATORS, get_generator
+from tests.conftest import slow_except
 
 NAMES = GENERATORS.names()
 
@@ -26,7 +27,7 @@ def _check_closed(gen, x, lod):
     return m
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", slow_except(NAMES, "dishes", "buildings"))
 def test_presets_are_closed_at_every_lod(name):
     gen = get_generator(name)
     assert gen.presets
@@ -36,7 +37,7 @@ def test_presets_are_closed_at_every_lod(name):
             _check_closed(gen, x, lod)
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", slow_except(NAMES, "dishes", "buildings"))
 def test_random_parameters_give_closed_meshes(name, rng):
     gen = get_generator(name)
     for _ in range(8):

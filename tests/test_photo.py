@@ -100,6 +100,7 @@ def test_masks_from_the_image_on_a_plain_background(tiny_case, rng):
     assert iou(cut) > 0.9 and truth[-1].any()
 
 
+@pytest.mark.slow
 def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
     """Smoke profile through the command line: one photo, no mask (segmented), no camera: the
     params carry the estimated camera."""
@@ -189,6 +190,7 @@ def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
     assert info["pose"] == placed_pose(info["photo_pose"], place)
 
 
+@pytest.mark.slow
 def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, monkeypatch):
     """With ``pitch_starts`` the memetic stage runs free, then once per pitch with the camera's pitch
     held there (starts, steps and the last generation)."""
@@ -212,6 +214,7 @@ def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, 
     assert len(seen) == 3 and len(seen[0]) > 1 and seen[1:] == [[10.0], [40.0]]  # the free run first
 
 
+@pytest.mark.slow
 def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     """``photo_fov``: view 0's mask with its field of view but not its camera; the field of view
     stays the given one, and the memetic stage runs once per pitch start (only when it is given)."""
@@ -234,6 +237,7 @@ def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     assert len(focal) and set(focal["res"]) == {get_profile("smoke").refine_res[-1]}  # its steps' size too
 
 
+@pytest.mark.slow
 def test_a_field_of_view_grid_keeps_the_fit_of_lowest_loss(tmp_path, tiny_case, monkeypatch):
     """``fov_grid``: with the field of view withheld, one fit per grid value with it held (pitch
     starts too), the lowest score kept and reported as chosen, not given; each value's score in

@@ -14,6 +14,7 @@ from ipm.methods import METHODS
 from ipm.metrics import silhouette_iou
 from ipm.problem import Problem, estimate_anchor
 from ipm.synth import ground_truth_mesh, load_case
+from tests.conftest import THREADS, slow_except
 
 
 def test_anchor_lands_near_the_true_object(tiny_case):
@@ -30,7 +31,7 @@ SMALL = dict(population=4, ga_iterations=3, adam_per_iteration=16, memetic_res=4
 """A budget a little above ``smoke``: enough to show the search working on 64 px inputs."""
 
 
-@pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
+@pytest.mark.parametrize("renderer", slow_except(["mitsuba", "jax"], "jax"))
 def test_diff_reconstruction_writes_everything(tmp_path, tiny_case, renderer):
     out = tmp_path / "rec"
     info = METHODS["diff"](tiny_case / "transforms.json", out, generator="dishes", profile="smoke", seed=3,
@@ -103,6 +104,7 @@ def test_recentring_keeps_the_mesh_and_frees_the_bounds():
     assert np.array_equal(dishes.recentred(z), z)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
 def test_reconstruction_is_deterministic(tmp_path, tiny_case, renderer):
     """Same seed, same answer, bit for bit, on one thread (several threads reorder float sums)."""
@@ -113,7 +115,7 @@ def test_reconstruction_is_deterministic(tmp_path, tiny_case, renderer):
         a, b = (METHODS["diff"](tiny_case / "transforms.json", tmp_path / name, profile="smoke", seed=5,
                                 progress=False, renderer=renderer) for name in "ab")
     finally:
-        dr.set_thread_count(2)
+        dr.set_thread_count(THREADS)
     assert a["params"] == b["params"] and a["pose"] == b["pose"]
 
 
@@ -168,6 +170,7 @@ def test_match_area_recovers_the_scale(mitsuba_cpu):
     assert abs(fixed[-1] - z[-1]) < 0.25 * np.log(1.6)
 
 
+@pytest.mark.slow
 def test_batched_objective_matches_single_calls(mitsuba_cpu):
     """``Objective.many``: points of two topologies (with and without a handle), padded to a batch
     of 4, give the losses and gradients of one-at-a-time calls with the same seeds; ``batch`` is on

@@ -15,6 +15,7 @@ from ipm.problem import Problem
 from ipm.render.cameras import orbit_camera
 from ipm.render.edges import EdgeRenderer
 from ipm.render.silhouette import SilhouetteRenderer
+from tests.conftest import slow_except
 
 FOV = 0.7
 POSE = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
@@ -63,10 +64,10 @@ def test_coverage_is_unbiased_area():
     assert area == pytest.approx(exact, rel=0.01)
 
 
-@pytest.mark.parametrize("name, shift, delta", [
+@pytest.mark.parametrize("name, shift, delta", slow_except([
     ("profile_4", 0.1, 0.005), ("y_scale", 0.1, 0.005), ("handle_radius_10", 0.3, 0.02),
     ("yaw", 0.3, 0.005), ("dx", 0.05, 0.005), ("log_scale", 0.05, 0.005),
-])
+], "profile_4"))
 def test_gradient_matches_central_differences(name, shift, delta):
     """d loss / d z by edge sampling (mean over 8 render seeds) against central differences of the
     loss of high-sample renders (64 per pixel, the same sample grid on both sides)."""
@@ -109,6 +110,7 @@ def test_gradient_matches_mitsuba(mitsuba_cpu):
     assert np.linalg.norm(g[0]) == pytest.approx(np.linalg.norm(g[1]), rel=0.1)
 
 
+@pytest.mark.slow
 def test_batch_equals_single_calls_and_budget_grows():
     """A population in one call gives each individual's loss and gradient as single calls do; a
     span budget far too small is grown until the image is complete."""
@@ -170,7 +172,7 @@ def _house(classes=("window",)):
     return gen, z0, fn, topo, [topo.faces[~np.any(inside, 0)]] + [topo.faces[m] for m in inside], cams
 
 
-@pytest.mark.parametrize("classes", [("window",), ("window", "roof")])
+@pytest.mark.parametrize("classes", slow_except([("window",), ("window", "roof")], "window"))
 def test_class_mask_matches_mitsuba(mitsuba_cpu, classes):
     """A building's silhouette and its visible window mask (recessed panes, partly hidden by their
     reveals at an angle), and its roof's, agree with Mitsuba's: pixels more than half covered at
@@ -190,6 +192,7 @@ def test_class_mask_matches_mitsuba(mitsuba_cpu, classes):
         assert (np.minimum(ours[:, 1], ours[:, 2]) > 0.5).sum() == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,classes", [("window_width", ("window",)), ("window_sill", ("window",)),
                                           ("roof_overhang", ("window", "roof"))])
 def test_class_gradient_matches_central_differences(mitsuba_cpu, name, classes):
@@ -259,6 +262,7 @@ def fresh_programs():
     clear()
 
 
+@pytest.mark.slow
 def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_path, fresh_programs):
     """With a program folder the renderer's programs (silhouette loss, single and batched, render,
     class-mask loss) are exported there and give the numbers of programs traced afresh; a later

@@ -177,6 +177,7 @@ def test_trace_plots_show_loss_against_evaluations_and_wall_time():
     assert len(axes) == 4 and list(axes[2].lines[0].get_ydata()) == [0.7, 0.9]
 
 
+@pytest.mark.slow
 def test_check_report_in_chromium_passes_and_saves_screenshots(report, tmp_path):
     result = check_report(str(report["html"]), str(tmp_path / "shots"), [OURS, HULL, LINE])
     assert result["rows_missing"] == [] and result["errors"] == [] and result["images_broken"] == []
@@ -187,6 +188,7 @@ def test_check_report_in_chromium_passes_and_saves_screenshots(report, tmp_path)
     assert json.loads((tmp_path / "shots" / "check.json").read_text())["screenshots"] == result["screenshots"]
 
 
+@pytest.mark.slow
 def test_check_report_fails_with_one_clear_line_on_a_broken_page(report, tmp_path):
     text = report["text"]
     text = re.sub(r'src="data:image/png;base64,[^"]+"', 'src="data:image/png;base64,AAAA"', text, count=1)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 CPU_OVER_WALL = 1.15
-"""Most CPU time per second of wall time of a ``--threads 1`` job (issue: 1.7 for diffSDF before)."""
+"""Most CPU time per second of wall time of a ``--threads 1`` job (1.7 for diffSDF before its threads were bounded)."""
 
 
 def _cpu_and_wall(args: list[str]) -> tuple[float, float]:

@@ -11,7 +11,7 @@ from ipm.errors import UserError
 from ipm.io import load_mesh, load_views
 from ipm.metrics import raycast_masks
 from ipm.synth import ground_truth_mesh, list_cases, load_case
-from tests.conftest import synthesized
+from tests.conftest import slow_except, synthesized
 
 
 def test_case_files_are_complete():
@@ -20,7 +20,8 @@ def test_case_files_are_complete():
         load_case("cup_99")
 
 
-@pytest.mark.parametrize("case", list_cases())
+@pytest.mark.parametrize("case", slow_except(list_cases(), "cup_1", "cup_tankard", "building_1", "building_l_house",
+                                               "tree_1", "tree_conifer"))
 def test_ground_truths_are_closed_and_upright(case):
     v, f, labels, uv = ground_truth_mesh(load_case(case))
     m = trimesh.Trimesh(v, f, process=False)
@@ -104,7 +105,7 @@ def test_ring_layout_keeps_neighbours_close_for_sift(n):
     assert np.allclose(np.einsum("ij,ij->i", forward, to_centre), 1.0)  # all look at the object
     elevation = np.degrees(np.arcsin((eyes[:, 1] - centre[1]) / np.linalg.norm(eyes - centre, axis=1)))
     assert elevation.min() >= 10.0 and elevation.max() <= 65.0
-    # every view has a neighbour within 22.5 degrees (SfM failed at 45 degree spacing, DESIGN.md)
+    # every view has a neighbour within 22.5 degrees (SfM failed at 45 degree spacing)
     d = to_centre @ to_centre.T
     np.fill_diagonal(d, -1.0)
     assert np.degrees(np.arccos(np.clip(d.max(1), -1, 1))).max() <= 22.5 + 1e-6

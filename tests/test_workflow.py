@@ -11,6 +11,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from tests.conftest import slow_except
+
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
@@ -27,7 +29,7 @@ def test_lint_is_clean():
     assert "Congratulations" in res.stdout + res.stderr
 
 
-@pytest.mark.parametrize("config", ["default", "smoke", "paper", "benchmark"])
+@pytest.mark.parametrize("config", slow_except(["default", "smoke", "paper", "benchmark"], "default", "smoke", "paper"))
 def test_dry_run_plans_every_stage(config, tmp_path):
     res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
                     "--directory", str(tmp_path))
