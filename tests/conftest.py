@@ -96,11 +96,11 @@ def _release_compiled_code(request):
 def slow_except(values, *fast):
     """``values`` for ``pytest.mark.parametrize``, each marked ``slow`` unless its first element is
     in ``fast``: the fast tier (``-m "not slow"``) keeps those, the full suite runs every one."""
-    def first(v):
-        return v[0] if isinstance(v, tuple) else v
-
-    return [v if first(v) in fast else pytest.param(*(v if isinstance(v, tuple) else (v,)), marks=pytest.mark.slow)
-            for v in values]
+    out = []
+    for v in values:
+        args = v if isinstance(v, tuple) else (v,)
+        out.append(v if args[0] in fast else pytest.param(*args, marks=pytest.mark.slow))
+    return out
 
 
 @pytest.fixture
@@ -138,7 +138,7 @@ def pytest_unconfigure(config):
 
 MAX_WORKERS = 4
 """``-n auto`` (pyproject's addopts) starts one worker per CPU up to this many: each worker holds
-JAX, Mitsuba and open3d (a few GiB), and the modules that fit most are few."""
+JAX, Mitsuba and open3d (a few GiB), and few modules are long enough to keep more of them busy."""
 
 
 def pytest_xdist_auto_num_workers(config):
