@@ -1,6 +1,5 @@
-"""Baselines: general-purpose reconstruction methods, registered in ``ipm.methods.METHODS``.
+"""Baselines: general-purpose reconstruction methods, declared in the catalogue ``ipm.methods.METHODS``.
 
-Each subpackage registers one or more methods with ``ipm.methods.method`` and writes its mesh
-in the world frame of the input views, so the same 64-view metric scores it.
+Each subpackage implements one or more methods and writes its mesh in the world frame of the
+input views, so the same 64-view metric scores it.
 """
-from baselines import colmap, diffsdf, visual_hull  # noqa: F401

@@ -38,7 +38,6 @@ from baselines.colmap.pipeline import (extract, incremental_sfm, make_workspace,
 from baselines.common import input_views, write_failure, write_result
 from ipm.hull import object_box
 from ipm.errors import UserError
-from ipm.methods import method
 
 PROFILES = {
     "smoke": {"max_features": 1024, "first_octave": 0, "poisson_depth": 6},
@@ -176,7 +175,6 @@ def _run(name: str, known: bool, views_path, out, profile: str, seed: int, progr
     return write_result(out, verts, faces, t0, info)
 
 
-@method("colmap_known", "COLMAP known poses ({views})", layout="ring")
 def run_colmap_known(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                      n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline colmap_known``: SIFT, exhaustive matching, triangulation at the known
@@ -184,7 +182,6 @@ def run_colmap_known(views_path, out, profile: str = "default", seed: int = 0, p
     return _run("colmap_known", True, views_path, out, profile, seed, progress, n_input_views)
 
 
-@method("colmap_sfm", "COLMAP SfM ({views})", layout="ring")
 def run_colmap_sfm(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                    n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline colmap_sfm``: SIFT, exhaustive matching, incremental SfM, similarity to

@@ -34,7 +34,6 @@ from baselines.diffsdf import field as fieldlib
 from baselines.diffsdf.render import pixel_rays
 from ipm.errors import UserError
 from ipm.io.views import resize_masks
-from ipm.methods import method
 
 
 @dataclass(frozen=True)
@@ -192,7 +191,6 @@ def stage_data(views, targets: np.ndarray, lo: np.ndarray, hi: np.ndarray, shape
     return data, n_samples
 
 
-@method("diffsdf", "diffSDF-style ({views})", layout="hemi")
 def run_diffsdf(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                 n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline diffsdf``: OUT/mesh.ply (world frame), timing.json, info.json."""

@@ -13,7 +13,6 @@ from tqdm import tqdm
 from baselines.common import extract_surface, input_views, write_result
 from ipm.hull import grid_points, mask_values, object_box
 from ipm.errors import UserError
-from ipm.methods import method
 
 GRID = {"smoke": 48, "default": 128, "paper": 256}
 """Voxels per axis of the carved grid, per profile."""
@@ -28,7 +27,6 @@ def carve(views, lo: np.ndarray, hi: np.ndarray, n: int, progress: bool = False,
     return occ.reshape(n, n, n)
 
 
-@method("visual_hull", "visual hull ({views})", layout="hemi", seeded=False)
 def run_visual_hull(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                     n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline visual_hull``: OUT/mesh.ply (world frame), timing.json, info.json."""

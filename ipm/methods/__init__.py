@@ -1,31 +1,63 @@
-"""Reconstruction methods, registered by name; baselines register here too.
+"""Reconstruction methods, ours and the baselines, declared by name: a light catalogue.
+
+Importing this module loads no implementation (no JAX, Mitsuba or open3d), so Snakemake's parse
+of the workflow reads the catalogue cheaply; a method's code is imported on its first call.
 
 A method is a callable ``(views, out_dir, profile=, seed=, progress=, n_input_views=,
-**options) -> dict`` (``views``: a ``transforms.json`` path or ``Views`` already read) that writes at least ``out_dir/mesh.ply`` (world frame) and
-``out_dir/timing.json``, atomically. ``method`` attaches what the pipeline needs to know:
-the table label, the view layout it reads (``ipm.synth.LAYOUTS``), whether it takes a
-procedural generator (and whether that must be differentiable), and an optional per-generator
-preparation stage whose file the method then reads as ``prepared=`` (the GA's gene statistics).
+**options) -> dict`` (``views``: a ``transforms.json`` path or ``Views`` already read) that writes
+at least ``out_dir/mesh.ply`` (world frame) and ``out_dir/timing.json``, atomically. Its entry
+says what the pipeline needs to know: the table label, the view layout it reads
+(``ipm.synth.LAYOUTS``), whether it takes a procedural generator (and whether that must be
+differentiable), and an optional per-generator preparation stage whose file the method then
+reads as ``prepared=`` (the GA's gene statistics). Adding one: its module, and a line below.
 """
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Callable
+
 from ipm.registry import Registry
 
-METHODS: Registry = Registry("method")
+
+def resolve(entry: str) -> Callable:
+    """The object an entry ``"package.module:name"`` names (imported now)."""
+    module, _, name = entry.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
-def method(name: str, label: str, layout: str = "hemi", uses_generator: bool = False,
-           differentiable_only: bool = False, prepare=None, seeded: bool = True):
-    """Register a method under ``name``; ``label`` is the table's row label, with ``{views}``
-    standing for "1 view" / "N views". ``prepare(generator, out_path, profile=, seed=, progress=)``,
-    if given, writes a file per generator and seed (a cached pipeline stage) that the method takes
-    as ``prepared=out_path``. ``seeded=False`` marks a method without random choices: the
-    pipeline runs it once per case instead of once per seed."""
+@dataclass(frozen=True)
+class Method:
+    """A catalogue entry: a method's name, row label, implementation and what the pipeline asks of it."""
 
-    def deco(fn):
-        fn.label, fn.layout, fn.uses_generator = label, layout, uses_generator
-        fn.differentiable_only, fn.prepare, fn.seeded = differentiable_only, prepare, seeded
-        return METHODS.register(name)(fn)
+    name: str
+    label: str
+    """The table's row label, with ``{views}`` standing for "1 view" / "N views"."""
+    entry: str
+    """``module:function`` of the implementation."""
+    layout: str = "hemi"
+    uses_generator: bool = False
+    differentiable_only: bool = False
+    prepare_entry: str | None = None
+    """``module:function`` writing a file per generator and seed (a cached pipeline stage),
+    ``prepare(generator, out_path, profile=, seed=, progress=)``; the method takes it as ``prepared=``."""
+    seeded: bool = True
+    """False for a method without random choices: the pipeline runs it once per case, not per seed."""
 
-    return deco
+    def __call__(self, *args, **kwargs) -> dict:
+        return resolve(self.entry)(*args, **kwargs)
+
+    @property
+    def prepare(self) -> Callable | None:
+        return None if self.prepare_entry is None else resolve(self.prepare_entry)
+
+
+METHODS: Registry[Method] = Registry("method")
+
+
+def declare(name: str, label: str, entry: str, **options) -> Method:
+    """Add a method to the catalogue (a second entry of one name is an error)."""
+    return METHODS.register(name)(Method(name, label, entry, **options))
 
 
 def check_generator(name: str, generator: str) -> None:
@@ -44,5 +76,13 @@ def row_label(name: str, views: int) -> str:
     return METHODS[name].label.format(views=f"{views} view" if views == 1 else f"{views} views")
 
 
-from ipm.methods import diff, ga  # noqa: E402,F401  (fill the registry)
-import baselines  # noqa: E402,F401  (the baselines register into the same registry)
+_DIFF = dict(layout="hemi", uses_generator=True, differentiable_only=True)
+declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF)
+declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_photo", **_DIFF)
+declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_DIFF)
+declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses_generator=True,
+        prepare_entry="ipm.methods.ga:collect_generator_statistics")
+declare("diffsdf", "diffSDF-style ({views})", "baselines.diffsdf:run_diffsdf", layout="hemi")
+declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visual_hull", layout="hemi", seeded=False)
+declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")
+declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")

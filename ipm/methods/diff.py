@@ -29,7 +29,7 @@ from ipm.facades import marker_turn, read_counts
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, load_views, save_glb, save_ply, write_json
 from ipm.io.views import Views, resize_masks
-from ipm.methods import check_generator, method
+from ipm.methods import check_generator
 from ipm.optim.memetic import Batch, Individual, adam_steps, memetic
 from ipm.photo import PITCH_PRIOR, fov_of
 from ipm.problem import POSE_NAMES, Problem
@@ -772,7 +772,6 @@ def write_result(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.Dat
     return info
 
 
-@method("diff", "ours (diff, {views})", layout="hemi", uses_generator=True, differentiable_only=True)
 def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
              seed: int = 0, progress: bool = True, n_input_views: int | None = None, **overrides) -> dict:
     """``ipm reconstruct --method diff``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""
@@ -783,8 +782,6 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     return write_result(out, problem, z, trace, prof, info, time.perf_counter() - t0)
 
 
-@method("photo", "ours (diff, camera unknown, {views})", layout="hemi", uses_generator=True,
-        differentiable_only=True)
 def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
               seed: int = 0, progress: bool = True, n_input_views: int | None = 1, fov_given: bool = False,
               **overrides) -> dict:
@@ -808,8 +805,6 @@ def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes"
     return write_result(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
 
 
-@method("photo_fov", "ours (diff, camera unknown, FOV given, {views})", layout="hemi", uses_generator=True,
-        differentiable_only=True)
 def run_photo_fov(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
                   seed: int = 0, progress: bool = True, n_input_views: int | None = 1, **overrides) -> dict:
     """The camera-withheld row with the field of view given, as a photo's Exif gives it: pitch,

@@ -52,9 +52,9 @@ import numpy as np
 from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.generators.base import Generator, Mesh, make_spec, vertex_normals
-from ipm.io import atomic_dir, load_views, save_glb, save_ply, shown_path, write_json
+from ipm.io import load_views, shown_path
 from ipm.io.views import Views
-from ipm.methods import method
+from ipm.methods.results import write_result
 from ipm.optim.ga import GASettings, GeneStatistics, TreeGA, collect_statistics, get_settings
 from ipm.render.cameras import orbit_camera
 
@@ -587,7 +587,6 @@ def reconstruct(objective: Objective, settings: GASettings, stats: GeneStatistic
     return ga.minimize(objective, progress=progress)
 
 
-@method("ga", "ours (GA, {views})", layout="hemi", uses_generator=True, prepare=collect_generator_statistics)
 def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "trees", profile: str = "default",
            seed: int = 0, progress: bool = True, n_input_views: int | None = None,
            prepared: str | Path | None = None, ga_settings: dict | None = None, **options) -> dict:
@@ -630,21 +629,11 @@ def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "tr
     t_stats = time.perf_counter() - t_stats
     best, loss, trace = reconstruct(objective, settings, stats, seed, progress)
     mesh, info = objective.genome.world_mesh(best, output_lod(gen, opts))
-    if not np.all(np.isfinite(mesh.vertices)) or len(mesh.faces) == 0:
-        raise FloatingPointError("the GA's best genome gives an empty or non-finite mesh")
     seconds = time.perf_counter() - t0
     info.update({"method": "ga", "profile": profile, "seed": seed, "final_loss": float(loss),
                  "evaluations": int(len(trace)), "loss": "tree" if objective.tree else "silhouette",
                  "statistics": stats_source, "settings": asdict(settings), "options": asdict(opts),
                  "parts": sorted({gen.part_names[k] for k in np.unique(mesh.labels)}), **views.input_frame()})
-    with atomic_dir(out) as tmp:
-        save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
-        save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
-                 normals=mesh.normals, extras={k: info[k] for k in ("generator", "params", "pose") if k in info})
-        write_json(tmp / "params.json", info)
-        trace.to_csv(tmp / "trace.csv", index=False)
-        write_json(tmp / "timing.json", {"seconds": seconds, "evaluations": int(len(trace)),
-                                         "statistics_seconds": t_stats,
-                                         "search_seconds": objective.seconds,
-                                         "seconds_per_evaluation": objective.seconds / max(objective.evaluations, 1)})
-    return info
+    return write_result(out, mesh, info, trace, {
+        "seconds": seconds, "statistics_seconds": t_stats, "search_seconds": objective.seconds,
+        "seconds_per_evaluation": objective.seconds / max(objective.evaluations, 1)})
