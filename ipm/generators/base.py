@@ -129,6 +129,9 @@ class Generator:
     """Level of detail of the synthetic references (the generator's full detail)."""
     differentiable: bool = True
     """False for generators without a JAX positions function (searched by the GA path only)."""
+    plant: bool = False
+    """True for a generator of plants, whose parts are branches and foliage: the GA path fits it
+    with the tree loss (``ipm.losses.tree``) and estimates its anchor from the trunk's foot."""
     shared_positions: bool = False
     """True when ``positions_fn`` is one function for every topology of a level of detail (it reads
     the discrete values from the vector; each topology's faces use the vertices it has), so an

@@ -689,6 +689,7 @@ class Trees(Generator):
     name = "trees"
     spec = make_spec(_SPEC_ROWS)
     part_names = ("branch", "foliage")
+    plant = True
     semantic_labels = LABEL_NAMES
     part_semantic = (BRANCH, FOLIAGE)
     lods = tuple(_LOD)
