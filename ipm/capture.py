@@ -80,6 +80,18 @@ def upright(views: Views, up: str = "y") -> Views:
                    ground_known=False)
 
 
+def unposed_camera(views: Views) -> Views:
+    """``views`` as read (``ipm.io.load_views``); a photo its file gives no pose (``Views.posed``
+    False, no camera yet) with its camera to estimate (``ipm.photo.unknown_camera_views``), at the
+    file's field of view or else ``ipm.photo.DEFAULT_FOV``."""
+    if views.posed or views.camera is not None:
+        return views
+    from ipm.photo import DEFAULT_FOV, unknown_camera_views
+
+    fov_known = views.fov_x is not None
+    return unknown_camera_views(views if fov_known else replace(views, fov_x=DEFAULT_FOV), fov_known=fov_known)
+
+
 def _colmap_camera(cams: dict, used: set[int]) -> Lens:
     """The one camera the images of a COLMAP model share, as a :class:`~ipm.io.lens.Lens`
     (any perspective model: its masks are resampled onto the pinhole twin)."""
@@ -144,7 +156,8 @@ def open_views(views: str | Path | None = None, up: str | None = None, colmap: s
     """The input of a reconstruction or baseline: a ``transforms.json`` (its world's ``up`` axis,
     ``y`` by default), a COLMAP model with its images and masks folders (``auto`` by default), or
     one photo (``image``, its ``mask`` or alpha channel, the ``fov`` in degrees if known) whose
-    camera is estimated (``ipm.photo``); exactly one of the three."""
+    camera is estimated (``ipm.photo``; so is a transforms.json's single frame without its pose:
+    :func:`unposed_camera`); exactly one of the three."""
     if sum(x is not None for x in (views, colmap, image)) != 1:
         raise UserError("give one of --views transforms.json, --colmap MODEL (with --images, --masks) "
                         "or --image PHOTO (with --mask, else its alpha or colours)")
@@ -159,7 +172,7 @@ def open_views(views: str | Path | None = None, up: str | None = None, colmap: s
     if colmap is None:
         if images is not None or masks is not None:
             raise UserError("--images and --masks go with --colmap (a transforms.json names its own files)")
-        return upright(load_views(views), up or "y")
+        return upright(unposed_camera(load_views(views)), up or "y")
     if images is None:
         raise UserError("--colmap needs --images (the photos' folder; --masks: one mask per photo, "
                         "else each photo's alpha or colours)")

@@ -242,11 +242,12 @@ def photo_views(image: str, mask: str | None = None, fov_deg: float | None = Non
 
 
 def unknown_camera_views(views: Views, fov_known: bool) -> Views:
-    """``views`` (one) marked as having an unknown camera; the render camera at the prior's middle."""
+    """``views`` (one) marked as having an unknown camera (and no pose); the render camera at the
+    prior's middle."""
     if len(views) != 1:
         raise UserError(f"an unknown camera needs exactly one view, got {len(views)}")
     from ipm.problem import foot_pixel  # the anchor's foot, so both place the object alike
 
     foot = (*foot_pixel(views.masks[0]), views.width, views.height)
     camera = UnknownCamera(float(np.mean(PITCH_PRIOR)), float(views.fov_x), fov_known, foot)
-    return replace(views, c2w=c2w(camera.pitch0)[None], camera=camera)
+    return replace(views, c2w=c2w(camera.pitch0)[None], camera=camera, posed=False)

@@ -8,23 +8,16 @@ the Jinja2 template ``templates/report.html.j2``.
 from __future__ import annotations
 
 import base64
-import io
 import json
-import platform
-import subprocess
 from dataclasses import dataclass
-from datetime import datetime, timezone
-from importlib import metadata
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from ipm.io.atomic import atomic_path  # noqa: E402
+from ipm.io.atomic import atomic_path
+from reports.plots import _aggregate_bars, _fig, _png, _trace_plot
+from reports.provenance import _provenance
 
 HERE = Path(__file__).parent
 PAPER_TABLE = HERE / "paper_table1.json"
@@ -33,8 +26,6 @@ MODEL_VIEWER = HERE / "js" / "node_modules" / "@google" / "model-viewer" / "dist
 """The <model-viewer> web component (``npm ci --prefix reports/js``), inlined once into the page."""
 MAX_MODEL_BYTES = 3_000_000
 """Larger GLBs get no interactive 3D view (a note says so), to keep the page a sensible size."""
-PACKAGES = ("mitsuba", "drjit", "jax", "jaxlib", "numpy", "open3d", "pycolmap", "trimesh", "pandas", "snakemake")
-"""Packages whose versions the provenance lists (read from their metadata, nothing imported)."""
 
 
 @dataclass(frozen=True)
@@ -91,71 +82,7 @@ SIBLINGS = (
 """The tables after Table 1, in page order."""
 
 
-# ---------------------------------------------------------------- pictures
-
-
-def _uri(data: bytes, mime: str) -> str:
-    return f"data:{mime};base64,{base64.b64encode(data).decode()}"
-
-
-def _png(path: Path) -> str | None:
-    """``path`` as a data URI, None if it is not there."""
-    return _uri(path.read_bytes(), "image/png") if path.is_file() else None
-
-
-def _fig(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return _uri(buf.getvalue(), "image/png")
-
-
-def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
-    """Loss against evaluations and, where the trace has ``seconds``, against wall time: the diff
-    path's stages and resolutions, or the GA's tree levels (leaves 0, root highest); the black line
-    is the best so far. Where the trace has ``iou`` (the diff path: the input-view IoU of each
-    stage's best, at the stage's end), a second row plots it against the same axes."""
-    xs = [("eval", "evaluation")] + ([("seconds", "wall time (s)")] if "seconds" in trace else [])
-    iou = trace[trace["iou"].notna()] if "iou" in trace else trace.iloc[:0]
-    fig, axes = plt.subplots(1 + (not iou.empty), len(xs), figsize=(4.6 * len(xs), 2.6 * (1 + (not iou.empty))),
-                             squeeze=False)
-    for ax, (x, name) in zip(axes[-1] if not iou.empty else [], xs):
-        ax.plot(iou[x], iou["iou"], "o-", ms=4, color="tab:green")
-        for _, r in iou.iterrows():
-            ax.annotate(r["stage"], (r[x], r["iou"]), fontsize=6, xytext=(2, -8), textcoords="offset points")
-        ax.set_xlabel(name)
-        ax.set_ylabel("input-view IoU")
-        ax.grid(alpha=0.3)
-    groups = trace.groupby(["stage", "res"], sort=False) if "stage" in trace else trace.groupby("level")
-    for ax, (x, name) in zip(axes[0], xs):
-        for key, part in groups:
-            ax.plot(part[x], part["loss"], ".", ms=2, label=f"{key[0]} {key[1]}px" if "stage" in trace
-                    else f"GA level {key}")
-        ax.plot(trace[x], trace["best"], "k-", lw=1, label="best so far")
-        if (trace["loss"] > 0).all():
-            ax.set_yscale("log")
-        ax.set_xlabel(name)
-        ax.set_ylabel(f"{loss} loss")
-        ax.grid(alpha=0.3)
-    axes[0, -1].legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    return fig
-
-
-def _aggregate_bars(summary: pd.DataFrame):
-    """Class aggregates of the test split (mean over cases, error bar: std over seeds)."""
-    agg = summary[summary["case"].str.contains("/", na=False) & (summary["split"] == "test")]
-    if agg.empty or agg["iou_mean"].isna().all():
-        return None
-    wide = agg.pivot_table(index="case", columns="label", values="iou_mean", aggfunc="first")
-    err = agg.pivot_table(index="case", columns="label", values="iou_mean_std", aggfunc="first").reindex_like(wide)
-    fig, ax = plt.subplots(figsize=(8, 3.2))
-    wide.plot.bar(ax=ax, rot=0, width=0.8, yerr=err.fillna(0.0), capsize=2)
-    ax.set_ylim(max(0.0, float(np.nanmin(wide.to_numpy())) - 0.05), 1.0)
-    ax.set_ylabel("64-view IoU, mean over cases")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    ax.grid(axis="y", alpha=0.3)
-    return fig
+# ---------------------------------------------------------------- 3D views
 
 
 def _model(folder: Path, label: str) -> dict:
@@ -345,60 +272,6 @@ def _timing(df: pd.DataFrame, benchmarks: list[str]) -> dict:
         "max": "reconstruction s (max)", "jobs": "benchmarked jobs", "s_mean": "job s (mean)", "s_max": "job s (max)",
         "cpu_mean": "CPU s (mean)", "rss_mean": "RSS MB (mean)", "rss_peak": "peak RSS MB"})
     return {"table": _frame(table, "{:.1f}"), "n_files": len(bench)}
-
-
-# ---------------------------------------------------------------- provenance
-
-
-def _git_commit() -> str:
-    """HEAD of the repository of the working directory, else of the one this code lies in (with a
-    mark when tracked files differ from it), else "unknown"."""
-    for where in (Path.cwd(), HERE.parent):
-        try:
-            head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
-                                  timeout=10, check=True)
-            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
-                                   capture_output=True, text=True, timeout=10, check=True)
-        except (OSError, subprocess.SubprocessError):
-            continue
-        return head.stdout.strip() + (" (with uncommitted changes)" if dirty.stdout.strip() else "")
-    return "unknown"
-
-
-def _versions() -> dict:
-    out = {"python": platform.python_version()}
-    for name in PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
-
-
-def _machines(df: pd.DataFrame) -> list[dict]:
-    """Per machine (table.csv's ``machine``; "not recorded" where absent) the runs that ran there:
-    a line per method, "label: case (seeds ...), ..."."""
-    machine = df["machine"] if "machine" in df else pd.Series("not recorded", index=df.index)
-    machine = machine.fillna("not recorded").replace("", "not recorded")
-    out = []
-    for name, g in df.assign(machine=machine).groupby("machine", sort=False):
-        runs = [f"{label}: " + ", ".join(f"{case} (seed{'s' if len(c) > 1 else ''} "
-                                         f"{', '.join(str(int(s)) for s in c['seed'])})"
-                                         for case, c in lg.groupby("case", sort=False))
-                for label, lg in g.groupby("label", sort=False)]
-        out.append({"name": name, "n": len(g), "runs": runs})
-    return out
-
-
-def _provenance(df: pd.DataFrame, config: dict) -> dict:
-    import yaml
-
-    from ipm.runtime import machine_info, machine_line
-
-    plain = json.loads(json.dumps(config, default=str))
-    return {"versions": _versions(), "commit": _git_commit(), "config": yaml.safe_dump(plain, sort_keys=False),
-            "machines": _machines(df), "built_on": machine_line(machine_info()),
-            "built_at": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
 
 
 # ---------------------------------------------------------------- per case

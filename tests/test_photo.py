@@ -49,7 +49,7 @@ def test_a_photo_loads_with_an_unknown_camera(tmp_path, tiny_case):
     frame["mask_path"] = str(tiny_case / frame["mask_path"])
     data["frames"] = [frame]
     (tmp_path / "transforms.json").write_text(json.dumps(data))
-    views = load_views(tmp_path / "transforms.json")
+    views = open_views(tmp_path / "transforms.json")
     assert not views.camera.fov_known and views.fov_x == pytest.approx(DEFAULT_FOV)
     # an RGBA photo brings its own mask
     rgba = np.zeros((64, 64, 4), np.uint8)

@@ -9,22 +9,26 @@ import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image
 
 from ipm.errors import UserError
 from ipm.io.atomic import atomic_path, write_json
-from ipm.io.lens import NERFSTUDIO_COEFFICIENTS, nerfstudio_lens
+from ipm.io.lens import NERFSTUDIO_COEFFICIENTS, Lens, nerfstudio_lens
+
+if TYPE_CHECKING:
+    from ipm.photo import UnknownCamera
 
 
 @dataclass(frozen=True)
 class Views:
     """A set of calibrated views of one object, with their silhouettes."""
 
-    fov_x: float
-    """Horizontal field of view in radians."""
+    fov_x: float | None
+    """Horizontal field of view in radians; None only for a photo whose file gives neither its pose
+    nor its field of view (``posed`` False)."""
     width: int
     """Image width in pixels."""
     height: int
@@ -48,13 +52,16 @@ class Views:
     ground_known: bool = True
     """Whether the object stands on y = 0 by the input's word (the convention), not by an estimate
     (``ipm.capture.upright``: the masks' lowest common point lies below a base seen from above)."""
-    camera: Any = None
+    camera: UnknownCamera | None = None
     """``ipm.photo.UnknownCamera`` when the (single) view's camera is to be estimated; then ``c2w``
     and ``fov_x`` are the render camera's, a start, not a measurement."""
-    lens: Any = None
+    lens: Lens | None = None
     """The capture's camera (``ipm.io.lens.Lens``) when it is not the centred square-pixel pinhole:
     masks and label images were resampled onto its pinhole twin (``fov_x``); an image read later
     from ``frames`` goes through ``lens.resample`` too. None for a pinhole capture."""
+    posed: bool = True
+    """Whether the views' poses are known. False for a photo without one: as read, ``c2w`` the
+    identity and no ``camera`` (``ipm.capture.open_views`` gives it its unknown camera)."""
 
     def __len__(self) -> int:
         return len(self.c2w)
@@ -195,7 +202,7 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
     """Read and validate ``transforms.json`` (and its masks); raise ``UserError`` on bad input.
     Views already read (``ipm.capture.open_views``: a COLMAP model, a turned world) pass through.
     A single frame without ``transform_matrix`` (and perhaps without a field of view) is a photo
-    whose camera the reconstruction estimates (``Views.camera``).
+    read as it is (``Views.posed`` False; ``ipm.capture.open_views`` gives it its unknown camera).
 
     With ``semantics``, the frames' ``semantic_path`` label images are read too when the frames
     have them (all frames or none; each of the views' size, values 0..2, or up to the largest value
@@ -261,15 +268,8 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
             raise UserError(f"{path}: semantic_labels must map label names to integers") from None
         sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height, top) for fr in frames])
         sem_arr = sem_arr if lens is None else lens.resample(sem_arr, nearest=True)
-    if posed:
-        return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
-                     data.get("semantic_labels"), sem_arr, lens=lens)
-    from ipm.photo import DEFAULT_FOV, unknown_camera_views  # a photo without its camera (``ipm.photo``)
-
-    return unknown_camera_views(Views(DEFAULT_FOV if fov_x is None else fov_x, width, height, np.stack(c2w),
-                                      mask_arr, frames, path.parent, data.get("semantic_labels"), sem_arr,
-                                      lens=lens),
-                                fov_known=fov_x is not None)
+    return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
+                 data.get("semantic_labels"), sem_arr, lens=lens, posed=posed)
 
 
 def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:

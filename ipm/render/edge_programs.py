@@ -1,0 +1,181 @@
+"""The edge renderer's compiled programs (render, silhouette loss, class-mask loss, the generator's
+pullback), one per image size, supersampling and budget, and how the budgets grow
+(``ipm.render.edges``).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ipm.render import edge_classes, edge_scan
+from ipm.render.edge_classes import pyramid_loss, view_class_area
+from ipm.render.edge_scan import view_area
+from ipm.render.programs import StoredProgram
+from ipm.render.silhouette import group_count as _group_count
+
+SOURCES = (edge_scan.__file__, edge_classes.__file__, __file__)
+"""The files whose code the programs run (their key when kept between processes)."""
+
+
+def with_headroom(spans: int, grown: bool) -> int:
+    """A span budget for meshes needing ``spans``, on first sight or after outgrowing the last. Each
+    new budget is a new program to compile: about 2 s on a CPU, 8-10 s on an H100, where a loss
+    costs about the same at any budget (4 ms from 64 to 512 px) while on a CPU the work grows with
+    it. So a third (a quarter when grown) more on the CPU, and three times as many on a GPU
+    (where a cup's reconstruction compiled one or two grown budgets a stage)."""
+    if jax.default_backend() != "cpu":
+        return 3 * int(spans)
+    return int(spans * 1.25) if grown else int(spans) * 4 // 3
+
+
+def _round_up(n: int) -> int:
+    """``n`` rounded up to one of 8 sizes per octave (at most 12.5 % more work than asked for)."""
+    step = max(1 << max(int(n).bit_length() - 4, 0), 1)
+    return -(-int(n) // step) * step
+
+
+def _faces_key(faces: np.ndarray) -> tuple:
+    """A cheap key telling face arrays apart (shape and both ends)."""
+    return faces.shape, faces[:16].tobytes(), faces[-16:].tobytes()
+
+
+def _face_classes(faces, n_vertices: int = 0, blocks: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
+    """One face array (F, 3) of G face groups (:func:`_group_count`) and, for more than one, each
+    face's class (F,): its group's index (0: the silhouette's alone). With one vertex block per
+    group (``blocks`` G) group g's indices move past the first g blocks of ``n_vertices``."""
+    groups = [np.asarray(f, np.int32).reshape(-1, 3) for f in (faces if isinstance(faces, (list, tuple)) else [faces])]
+    if _group_count(faces) == 1:
+        return np.ascontiguousarray(groups[0]), None
+    shift = int(n_vertices) if blocks == len(groups) else 0
+    classes = np.concatenate([np.full(len(g), k) for k, g in enumerate(groups)]).astype(np.float32)
+    return np.ascontiguousarray(np.concatenate([g + k * shift for k, g in enumerate(groups)])), classes
+
+
+def _class_sizes(classes: np.ndarray) -> tuple[int, ...]:
+    """The number of faces of each class, a part of the keys of meshes with classes."""
+    return tuple(int(c) for c in np.bincount(classes.astype(np.int64)))
+
+
+@lru_cache(maxsize=64)
+def _render_fn(width: int, height: int, ss: int, budget: int) -> StoredProgram:
+    """(vertices, faces, w2c, focal, jitter) -> (pixel areas (n, H, W), spans needed per view)."""
+
+    def fn(vertices, faces, w2c, focal, jitter):
+        area, needed, _ = jax.vmap(lambda m, j: view_area(vertices, m, focal, faces, width, height, ss, j, budget))(
+            w2c, jitter)
+        return area, needed
+
+    return _stored(fn, "render", width, height, ss, budget)
+
+
+@lru_cache(maxsize=64)
+def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int], n_classes: int = 1) -> StoredProgram:
+    """(vertices, faces, classes, w2c, focal, jitter) -> (pixel areas (n, H, W), the classes'
+    visible areas (n, n_classes, H, W), spans and fragments needed per view (n, 2))."""
+
+    def fn(vertices, faces, classes, w2c, focal, jitter):
+        area, class_area, needed, _ = jax.vmap(lambda m, j: view_class_area(
+            vertices, m, focal, faces, classes, width, height, ss, j, budgets, n_classes=n_classes))(w2c, jitter)
+        return area, class_area, needed
+
+    return _stored(fn, "class_render", width, height, ss, budgets, n_classes)
+
+
+@lru_cache(maxsize=64)
+def _loss_fn(vertex_fn: Callable, width: int, height: int, ss: int, budget: int, batched: bool = False):
+    """jit(z, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed per view):
+    the generator's vertices and pullback around :func:`_silhouette_loss` in one program. The faces
+    are an argument, not a constant (XLA would fold it into the program at every compilation).
+    ``batched``: over a leading axis of ``z`` and ``jitter`` (individuals of one topology)."""
+    render = _silhouette_loss(width, height, ss, budget, batched)
+    vertices_of = jax.vmap(vertex_fn) if batched else vertex_fn
+
+    def fn(z, faces, targets, w2c, focal, jitter):
+        vertices, pullback = jax.vjp(vertices_of, z)
+        loss, grad, needed = render.inline(vertices, faces, targets, w2c, focal, jitter)
+        return loss, pullback(grad)[0], needed
+
+    return jax.jit(fn)
+
+
+@lru_cache(maxsize=64)
+def _silhouette_loss(width: int, height: int, ss: int, budget: int, batched: bool) -> StoredProgram:
+    """(flattened vertices, faces, targets, w2c, focal, jitter) -> (loss, d loss / d vertices,
+    spans needed per view), over a leading axis of vertices and jitter when ``batched``."""
+
+    def surrogate(vertices, faces, targets, w2c, focal, jitter):
+        vertices = vertices.reshape(-1, 3)
+        n_views = len(targets)
+
+        def view(m, target, j):
+            area, needed, sur = view_area(vertices, m, focal, faces, width, height, ss, j, budget,
+                                          lambda a: 2.0 * (a - target) / a.size / n_views)
+            return jnp.mean((jax.lax.stop_gradient(area) - target) ** 2) / n_views, sur, needed
+
+        loss, sur, needed = jax.vmap(view)(w2c, targets, jitter)
+        return jnp.sum(sur), (jnp.sum(loss), needed)
+
+    def fn(vertices, faces, targets, w2c, focal, jitter):
+        (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(vertices, faces, targets, w2c,
+                                                                                 focal, jitter)
+        return loss, grad, needed
+
+    if batched and jax.default_backend() == "cpu":  # one after another in one program: XLA's CPU
+        single = fn  # scatters with a batch dimension cost more than the individuals one by one
+
+        def fn(vertices, faces, targets, w2c, focal, jitter):
+            return jax.lax.map(lambda a: single(a[0], faces, targets, w2c, focal, a[1]), (vertices, jitter))
+    elif batched:
+        fn = jax.vmap(fn, in_axes=(0, None, None, None, None, 0))
+    return _stored(fn, "silhouette_loss", width, height, ss, budget, batched)
+
+
+@lru_cache(maxsize=64)
+def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple) -> StoredProgram:
+    """(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
+    d vertices, spans and fragments needed per view (n, 2)) with the class-mask terms ``highlight``
+    (a weight per class, pyramid levels, loss; class targets (n, K, H, W)). The generator is not in
+    the program (a building's takes longer to compile than the renderer, and each resolution and
+    budget is a program of its own): its vector-Jacobian product is compiled once (:func:`_pullback`)."""
+    weights, levels, kind = highlight
+
+    def class_loss(class_area, class_target):
+        return sum(weights[k] * pyramid_loss(class_area[k], class_target[k], levels, kind) for k in range(len(weights)))
+
+    def surrogate(vertices, faces, classes, targets, class_targets, w2c, focal, jitter):
+        n_views = len(targets)
+
+        def view(m, target, class_target, j):
+            def grads(a, c):
+                return (2.0 * (a - target) / a.size / n_views,
+                        jax.grad(lambda x: class_loss(x, class_target))(c) / n_views)
+
+            area, class_area, needed, sur = view_class_area(vertices.reshape(-1, 3), m, focal, faces, classes, width,
+                                                            height, ss, j, budgets, grads, n_classes=len(weights))
+            area, class_area = jax.lax.stop_gradient(area), jax.lax.stop_gradient(class_area)
+            loss = jnp.mean((area - target) ** 2) + class_loss(class_area, class_target)
+            return loss / n_views, sur, needed
+
+        loss, sur, needed = jax.vmap(view)(w2c, targets, class_targets, jitter)
+        return jnp.sum(sur), (jnp.sum(loss), needed)
+
+    def fn(*args):
+        (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(*args)
+        return loss, grad, needed
+
+    return _stored(fn, "class_loss", width, height, ss, budgets, highlight)
+
+
+def _stored(fn: Callable, *name) -> StoredProgram:
+    """``fn``, a program of the edge renderer with the settings ``name``, kept between processes."""
+    return StoredProgram(" ".join(map(str, name)), fn, SOURCES)
+
+
+@lru_cache(maxsize=64)
+def _pullback(vertex_fn: Callable):
+    """jit(z, d loss / d vertices) -> d loss / d z: the generator's vector-Jacobian product."""
+    return jax.jit(lambda z, cotangent: jax.vjp(vertex_fn, z)[1](cotangent)[0])
