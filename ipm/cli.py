@@ -53,9 +53,6 @@ def _parser() -> argparse.ArgumentParser:
                    help="diff: let the object lean up to this many radians (default 0: upright, on y = 0)")
     r.add_argument("--window-weight", type=float, default=None,
                    help="diff: weight of the window-mask term for buildings with semantic images (default 1; 0: none)")
-    r.add_argument("--extra-class-weight", type=float, default=None,
-                   help="diff: weight of the mask term of each further semantic class (buildings: roof; "
-                        "default: the profile's; 0 with --window-weight 0: silhouette only)")
     r.add_argument("--renderer", default=None, choices=["auto", "jax", "mitsuba"],
                    help="diff: silhouette renderer (jax: edge sampling, one compiled function; mitsuba; "
                         "auto: jax, but mitsuba for an unknown field of view; "
@@ -144,15 +141,12 @@ def _run(args) -> int:
             if method.prepare is None:
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
             extra["prepared"] = args.prepared
-        for name, lo, hi, unit in (("max_tilt", 0.0, 0.5, " radians"), ("window_weight", 0.0, 100.0, ""),
-                                 ("extra_class_weight", 0.0, 100.0, "")):
+        for name in ("max_tilt", "window_weight"):  # checked with the profile's other settings
             value, flag = getattr(args, name), "--" + name.replace("_", "-")
             if value is None:
                 continue
             if args.method != "diff":
                 raise UserError(f"{flag} applies to the diff path only")
-            if not lo <= value <= hi:  # also false for NaN
-                raise UserError(f"{flag}: needs {lo:g} to {hi:g}{unit}, got {value}")
             extra[name] = value
         for flag, value in (("--fov-grid", args.fov_grid), ("--renderer", args.renderer)):
             if value is not None and args.method not in ("diff", "photo"):

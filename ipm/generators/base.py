@@ -144,10 +144,6 @@ class Generator:
     mask_class: str | None = None
     """Semantic class whose mask the differentiable path matches beside the silhouette (buildings:
     window), weighted by the profile's ``window_weight``; None: silhouette only."""
-    extra_mask_classes: tuple[str, ...] = ()
-    """Further semantic classes whose masks the differentiable path matches too, weighted by the
-    profile's ``extra_class_weight`` (buildings: roof, which tells a low gable from a hip roof or
-    a flat one where the silhouettes nearly agree)."""
     min_fit_lod: int = 0
     """Lowest level of detail the differentiable path searches at (the first that has the
     ``mask_class`` parts: buildings' windows appear at level 2)."""
@@ -158,28 +154,17 @@ class Generator:
     """Count parameters that shape one side of the object only, with that side's outward normal
     in the object frame: they are scored only where the input view sees that side."""
     categorical: tuple[str, ...] = ()
-    """Discrete parameters whose values are kinds, not amounts (buildings: the roof type): with a
-    profile's ``decide_steps`` above 0 the differentiable path tries every value of each before
-    the last refinement stage (:func:`ipm.methods.diff.decide`): one kind's basin is not next to
-    another's."""
-    marker: tuple[str, str] | None = None
-    """A semantic class that one facade alone carries, and that facade's count name (buildings:
-    the door, on the front): it tells the object's front from its back (``ipm.facades``)."""
-    footprint: tuple[str, str] | None = None
-    """The parameters that set the object's extent along its own x and z axes (buildings: width
-    and depth), each independent of the other: from one view the extent along the line of sight
-    is poorly seen, so the differentiable path also tries it stretched and shrunk
-    (:func:`ipm.methods.diff.sweep_sight`). None: no such pair (a round object)."""
-    placements: tuple[dict[str, float], ...] = ()
-    """Starting values for a small part, each a complete place for it (buildings: the chimney,
-    switched on, mid-sized, at nine places on the roof): the part covers a few hundred pixels
-    and its edges give no gradient where it is not drawn, so the differentiable path also tries
-    it at each (:func:`ipm.methods.diff.sweep_place`). (): none."""
+    """Discrete parameters whose values are kinds, not amounts (buildings: the roof type): polish
+    tries every other value, not the next ones (``ipm.search.moves.polish``), and the roof race
+    every value (``ipm.search.moves.roof``): one kind's basin is not next to another's."""
     ratios: tuple[str, ...] | None = None
     """The continuous parameters that are not lengths (fractions, scale factors): every other
     continuous one is a length, so lengths times k at scale 1 / k make the same mesh, a gauge
     the differentiable path re-centres (:meth:`ipm.problem.Problem.recentred`). None: the
     generator has no such gauge (a length that is fixed, such as a normalised height)."""
+    moves: tuple[str, ...] = ("polish",)
+    """The moves of the differentiable search this generator wants, by name (``ipm.search.moves``;
+    a move's module says what else it asks of the generator)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""
@@ -204,48 +189,13 @@ class Generator:
         ``to_cameras`` (k, 3) show of the object turned by ``yaw`` about +y: all but the
         :attr:`facing` ones whose side faces away from every camera (one view sees at most two
         facades of a house; the windows on the others cannot be read from it)."""
-        c, s = np.cos(yaw), np.sin(yaw)
-        rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # as ipm.problem and ipm.synth turn objects
+        from ipm.pose import yaw_matrix
+
+        rot = yaw_matrix(yaw)  # as ipm.problem and ipm.synth turn objects
         d = np.atleast_2d(np.asarray(to_cameras, np.float64))
         d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
         return [n for n in self.counts
                 if n not in self.facing or (d @ (rot @ np.asarray(self.facing[n]))).max() > SEEN_COS]
-
-    def facades(self, x: np.ndarray) -> dict[str, tuple]:
-        """The flat sides of the object ``x`` whose windows a :attr:`facing` count counts, by that
-        count's name: (origin at the side's foot, centred; unit direction along it; outward unit
-        normal; length; height), object frame (``ipm.facades`` reads the counts off a window mask
-        there). Default: none."""
-        return {}
-
-    def marker_extent(self, x: np.ndarray) -> tuple[float, float]:
-        """Width of the :attr:`marker` and how deep it is recessed (object units): seen at an
-        angle, the recess hides part of it. Default: (0, 0), no marker."""
-        return 0.0, 0.0
-
-    def quarter_turned(self, x: np.ndarray) -> np.ndarray:
-        """``x`` with the object's sides traded so that, turned a quarter about +y, it covers
-        what ``x`` covered (for :attr:`marker` turns): the :attr:`footprint`'s two sides swapped;
-        ``x`` itself without one (a round object)."""
-        out = np.array(x, np.float64)
-        if self.footprint is not None:
-            i, j = (self.spec.index[name] for name in self.footprint)
-            out[i], out[j] = x[j], x[i]
-        return self.spec.clip(out)
-
-    def split_roof(self, x: np.ndarray, share: float) -> np.ndarray | None:
-        """``x`` with ``share`` of its height given to its roof and the rest to its walls (the
-        object's outline kept), for :func:`ipm.methods.diff.decide`; None where the object has no
-        such split (a flat roof, a cup). Default: None."""
-        return None
-
-    def change_count(self, x: np.ndarray, name: str, value: float) -> np.ndarray:
-        """``x`` with the count parameter ``name`` set to ``value`` and the continuous parameters
-        tied to it moved so the object keeps its size (a storey more at the same wall height).
-        Default: the value alone."""
-        x = np.array(x, np.float64)
-        x[self.spec.index[name]] = value
-        return x
 
     def topology_key(self, x: np.ndarray) -> tuple:
         """The discrete parameter values that decide the topology."""

@@ -229,13 +229,19 @@ class Buildings(Generator):
     part_semantic = tuple(BUILDING_LABELS[c] for c in ("wall", "window", "wall", "roof", "door", "wall"))
     """Frames and balconies count as wall: a window mask is the glass."""
     mask_class = "window"
-    extra_mask_classes = ("roof",)
     min_fit_lod = 2
     marker = ("door", "windows_front")
+    """The class one facade alone carries, and that facade's count: the door tells the front from the
+    back (``ipm.facades``)."""
     categorical = ("roof_type",)
     placements = tuple({"chimney": 1, "chimney_x": cx, "chimney_z": cz, "chimney_size": 0.1, "chimney_height": 0.2}
                        for cx in (-0.3, 0.0, 0.3) for cz in (-0.3, 0.0, 0.3))
+    """The chimney, switched on and mid-sized, at nine places on the roof (``ipm.search.moves.place``)."""
     footprint = ("width", "depth")
+    """The extent along the object's x and z axes (``ipm.search.moves.sight``)."""
+    moves = ("read", "polish", "recentre", "roof", "sight", "place", "read again")
+    """Counts read off the window masks, polish, re-centring, the roof race, the line-of-sight and the
+    chimney sweeps (``ipm.search.moves``)."""
     ratios = ("side_window_scale", "ground_window_scale", "hip_ratio", "balcony_width", "chimney_x", "chimney_z")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in _FACADES.items()}
@@ -255,10 +261,19 @@ class Buildings(Generator):
         within its bounds); other counts change alone."""
         ix = self.spec.index
         walls = float(x[ix["floors"]] * x[ix["floor_height"]])
-        x = self.spec.clip(super().change_count(x, name, value))
+        x = np.array(x, np.float64)
+        x[ix[name]] = value
+        x = self.spec.clip(x)
         if name == "floors":
             x[ix["floor_height"]] = walls / x[ix["floors"]]
         return self.spec.clip(x)
+
+    def quarter_turned(self, x):
+        """``x`` with width and depth swapped: turned a quarter about +y, it covers what ``x`` covered."""
+        out = np.array(x, np.float64)
+        i, j = (self.spec.index[name] for name in self.footprint)
+        out[i], out[j] = x[j], x[i]
+        return self.spec.clip(out)
 
     def split_roof(self, x, share):
         """A pitched roof ``share`` of the height (walls, ground-floor extra and roof together),

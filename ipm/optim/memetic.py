@@ -1,14 +1,14 @@
 """The paper's memetic algorithm: a GA over presets and discrete parameters with Adam inside.
 
 Per generation (``docs/design``, "Memetic search"; the authors' settings are
-``ipm.profiles.PROFILES["paper"]``):
+the ``paper`` profile, ``ipm.profiles``):
 1. Adam local search; the generation's steps are shared by quality
    ``q = (1 / (0.001 + err)) ** (1 + 0.2 it) * exp(-0.005 stall)`` (``stall``: steps since the
    individual last improved by 1 %); a step whose loss exceeds ``reject_ratio`` times the
    individual's best is undone and its rate halved (relative to the best, not the last loss,
    so accepted small rises cannot ratchet the loss upwards); each individual keeps its best point;
-2. individuals in the same initialisation bin (topology key, yaw bin and the caller's niche, e.g.
-   an unknown camera's pitch bin; one yaw bin per key for an object that looks the same turned,
+2. individuals in the same initialisation bin (topology key and yaw bin; one yaw bin per key for
+   an object that looks the same turned,
    whose yaw bins would hold turned twins of one basin) are merged (best kept);
 3. the worst ``remove_share`` are removed; the population is refilled with children of
    fitness-proportionate parents: a one-point crossover of the shape genes (pose from the
@@ -22,12 +22,45 @@ rendering, so the algorithm is testable alone.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Annotated, Callable
 
 import numpy as np
 
 from ipm.optim.adam import AdamState, adam_init, adam_update
-from ipm.profiles import DiffProfile
+from ipm.settings import UNIT, Range, Settings, at_least
+
+
+@dataclass(frozen=True)
+class MemeticSettings(Settings):
+    """Settings of the memetic stage and of every Adam run of the differentiable path."""
+
+    KIND = "diff setting"
+    population: Annotated[int, at_least(1)] = 16
+    """Individuals in the memetic population (initialised from presets and random samples)."""
+    ga_iterations: Annotated[int, at_least(1)] = 20
+    """Generations of the memetic algorithm."""
+    adam_per_iteration: Annotated[int, at_least(0)] = 160
+    """Adam steps per generation, shared among individuals by quality."""
+    remove_share: Annotated[float, UNIT] = 0.2
+    """Share of the worst individuals removed each generation."""
+    mutate_share: Annotated[float, UNIT] = 0.5
+    """Share of the population replaced by mutants of good individuals each generation."""
+    random_share: Annotated[float, UNIT] = 0.25
+    """Share of the initial population drawn at random instead of from presets."""
+    yaw_bins: Annotated[int, at_least(1)] = 16
+    """Initialisation bins of the yaw angle; individuals in the same bin are merged (one bin for an object that
+    looks the same turned: docs/decisions.md, 'One yaw bin for turned look-alikes')."""
+    lr: Annotated[float, Range(0.0, open_lo=True)] = 0.05
+    """Adam learning rate (unit-cube parameters; radians; object sizes)."""
+    reject_ratio: Annotated[float, Range(1.0)] = 1.2
+    """A step that raises the loss by more than this factor is undone and the rate halved."""
+    memetic_res: Annotated[int, at_least(8)] = 128
+    """Render width of the memetic stage (pixels)."""
+    memetic_lod: Annotated[int, at_least(0)] = 0
+    """Generator level of detail in the memetic stage."""
+    memetic_batch: bool = False
+    """Evaluate the memetic population's steps a round at a time, one batched JAX call per topology
+    (:func:`adam_steps_together`; silhouettes only); off (docs/decisions.md, 'Memetic batching')."""
 
 
 @dataclass
@@ -137,13 +170,13 @@ def yaw_bin(z: np.ndarray, n_shape: int, bins: int) -> int:
     return int(np.floor(np.mod(z[n_shape], 2 * np.pi) / (2 * np.pi) * bins)) % bins
 
 
-def merge_bins(pop: list[Individual], n_shape: int, bins: int, yaw_free: Callable = lambda z: False,
-               niche: Callable = lambda z: 0) -> list[Individual]:
-    """Keep the best individual of each (topology key, yaw bin, ``niche(z)``); an object that looks
+def merge_bins(pop: list[Individual], n_shape: int, bins: int,
+               yaw_free: Callable = lambda z: False) -> list[Individual]:
+    """Keep the best individual of each (topology key, yaw bin); an object that looks
     the same turned (``yaw_free(z)``) has one yaw bin: its turned twins are one individual, not many."""
     best: dict = {}
     for ind in pop:
-        k = (ind.key, 0 if yaw_free(ind.z) else yaw_bin(ind.z, n_shape, bins), niche(ind.z))
+        k = (ind.key, 0 if yaw_free(ind.z) else yaw_bin(ind.z, n_shape, bins))
         if k not in best or ind.best_loss < best[k].best_loss:
             best[k] = ind
     return sorted(best.values(), key=lambda i: i.best_loss)
@@ -167,7 +200,7 @@ def move_discrete(u: np.ndarray, levels: np.ndarray, rng: np.random.Generator) -
 
 
 def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Generator, n_shape: int,
-               profile: DiffProfile, levels: np.ndarray, key_of: Callable, clip: Callable) -> Individual:
+               profile: MemeticSettings, levels: np.ndarray, key_of: Callable, clip: Callable) -> Individual:
     """Crossover (one point over the shape genes) and mutation of fitness-proportionate parents;
     ``levels``: values per shape gene (0: continuous)."""
     a, b = rng.choice(len(parents), size=2, p=probs)
@@ -186,17 +219,16 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 
 
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
-            n_shape: int, levels: np.ndarray, profile: DiffProfile, rng: np.random.Generator,
+            n_shape: int, levels: np.ndarray, profile: MemeticSettings, rng: np.random.Generator,
             on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z,
-            yaw_free: Callable = lambda z: False, niche: Callable = lambda z: 0,
+            yaw_free: Callable = lambda z: False,
             batch: Batch | None = None) -> list[Individual]:
     """Run the memetic stage from ``initial``; the last generation, best first (one individual
     per topology key and yaw bin): the first one's ``best_z`` is the answer.
 
     ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
     rescales it to the targets' silhouette area, as it does for the initial population);
-    ``yaw_free(z)``: the object ``z`` looks the same turned; ``niche(z)``: a further bin index that
-    keeps individuals apart (:func:`merge_bins`); ``batch``: evaluate the population's steps a
+    ``yaw_free(z)``: the object ``z`` looks the same turned (:func:`merge_bins`); ``batch``: evaluate the population's steps a
     round at a time in batched calls (:func:`adam_steps_together`; the same result as without).
     """
     def steps(inds: list[Individual], ns) -> None:
@@ -215,7 +247,7 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
         steps(pop, share_budget(profile.adam_per_iteration, log_quality(losses, stalls, it)))
         for ind in pop:
             ind.key = key_of(ind.z)
-        pop = merge_bins(pop, n_shape, profile.yaw_bins, yaw_free, niche)
+        pop = merge_bins(pop, n_shape, profile.yaw_bins, yaw_free)
         if it == profile.ga_iterations - 1:
             break
         keep = max(1, len(pop) - int(np.ceil(profile.remove_share * profile.population)))

@@ -1,0 +1,158 @@
+"""The differentiable path's one search loop: memetic search, then per stage the moves that apply and Adam.
+
+Stages: the memetic stage at low resolution (its start pluggable, ``ipm.search.starts``), the
+finalists' moves, then coarse-to-fine Adam with each stage's moves before it, the choice between
+candidates after the first, and the moves of the end. The moves come from the generator and the
+camera (``ipm.search.moves``); the loop knows none of them by name.
+"""
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass
+from typing import Annotated
+
+import numpy as np
+import pandas as pd
+
+from ipm.errors import UserError
+from ipm.io.views import Views, resize_masks
+from ipm.optim.memetic import Individual, adam_steps, memetic
+from ipm.problem import Problem
+from ipm.search.moves import moves_for
+from ipm.search.objective import Objective
+from ipm.search.starts import preset_start
+from ipm.search.trial import Candidate, Tracker, Trial, scorer
+from ipm.settings import Range, Settings, at_least
+
+
+@dataclass(frozen=True)
+class LoopSettings(Settings):
+    """The loop's own settings: its stages and what it writes."""
+
+    KIND = "diff setting"
+    refine_res: tuple[Annotated[int, at_least(8)], ...] = (256, 512)
+    """Render widths of the refinement stages (doubling)."""
+    refine_iterations: tuple[Annotated[int, at_least(0)], ...] = (250, 250)
+    """Adam steps per refinement stage (docs/decisions.md, 'Last stage length')."""
+    refine_lod: Annotated[int, at_least(0)] = 1
+    """Generator level of detail during refinement."""
+    output_lod: Annotated[int, at_least(0)] = 1
+    """Generator level of detail of the written mesh (level 2's 128-gon pole fans have 2.8-degree angles,
+    which the malformed-triangle metric would count; docs/decisions.md, 'Output level of detail')."""
+    refine_candidates: Annotated[int, at_least(1)] = 1
+    """Finalists of the memetic stage (distinct topologies or yaws, :func:`finalists`) each taken through the
+    finalist moves and the first refinement stage; the lowest loss goes on (docs/decisions.md, 'Finalists')."""
+    max_tilt: Annotated[float, Range(0.0, 0.5)] = 0.0
+    """Bound of the two tilt angles (radians); 0 holds the object upright, the scene convention.
+    Raise it for objects that may lean (docs/decisions.md, 'Upright objects')."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not self.refine_res or len(self.refine_res) != len(self.refine_iterations):
+            raise UserError(f"refine_res and refine_iterations need one entry per stage each, got "
+                            f"{list(self.refine_res)} and {list(self.refine_iterations)}")
+
+
+def finalists(problem: Problem, final: list[Individual], k: int) -> list[Individual]:
+    """Up to ``k`` of the memetic stage's last generation (best first) that differ from every one
+    taken before in their topology or by more than a quarter turn in yaw: the basins worth a
+    refinement of their own (the memetic resolution cannot tell a low gable roof from a hip)."""
+    out = []
+    for ind in final:
+        yaw = ind.best_z[problem.n_shape]
+        if all(problem.key(ind.best_z) != problem.key(o.best_z)
+               or abs(np.angle(np.exp(1j * (yaw - o.best_z[problem.n_shape])))) > np.pi / 4 for o in out):
+            out.append(ind)
+        if len(out) == k:
+            break
+    return out
+
+
+def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
+    """Mean IoU of the input masks and the silhouettes of ``z``'s mesh from the input cameras (open3d
+    ray casting at ``res`` px): the trace's progress in the metric's own terms. NaN where the
+    cameras are not known (a photo), the images are not square or open3d is not installed (the GPU
+    machine: the value only annotates the trace, so the fit itself runs without it)."""
+    if (views.camera is not None or views.width != views.height or views.masks is None
+            or importlib.util.find_spec("open3d") is None):
+        return float("nan")
+    import trimesh
+
+    from ipm.metrics.silhouette import raycast_masks, view_ious
+
+    mesh, res = problem.world_mesh(z, lod), min(res, views.width)
+    rec = raycast_masks(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), list(views.c2w), res,
+                        float(np.degrees(views.fov_x)))
+    return float(view_ious(resize_masks(views.masks, res) > 0.5, rec).mean())
+
+
+def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress: bool = True,
+                start=preset_start) -> tuple[np.ndarray, pd.DataFrame]:
+    """Best ``z`` for ``views`` under ``profile`` (``ipm.profiles.DiffProfile``) and the trace (one row
+    per evaluation; at the end of each stage its ``iou`` column holds the input-view IoU of the
+    stage's best, :func:`input_iou`). ``start`` makes the memetic stage's first population."""
+    loop, mem = profile.loop, profile.memetic
+    moves = [m for m in moves_for(problem) if m.applies(problem, profile)]
+    phase = {p: [m for m in moves if m.phase == p] for p in ("memetic", "finalist", "stage", "last", "refine", "end")}
+    holds = [{}] + [h for m in phase["memetic"] for h in m.holds(problem, profile)]
+    total = (len(holds) * mem.ga_iterations * (mem.adam_per_iteration + mem.population)
+             + sum(loop.refine_iterations) + len(loop.refine_res)
+             + sum(m.cost(problem, profile) for m in phase["last"])
+             + (loop.refine_candidates - 1) * (loop.refine_iterations[0] + 1))
+    track, rng, least = Tracker(total, progress), np.random.default_rng(seed), problem.generator.min_fit_lod
+    ious = {}
+
+    def checkpoint(z: np.ndarray) -> None:
+        """The input-view IoU of the current stage's best, on the stage's last trace row."""
+        ious[len(track.rows) - 1] = input_iou(problem, views, z, max(loop.refine_lod, least))
+
+    def run(move, cands: list[Candidate], steps, score) -> list[Candidate]:
+        label = move.label or move.name
+        track.enter(label, steps.width)
+        trial = Trial(problem, steps, score, mem.lr, mem.reject_ratio, views, profile, track.on_eval,
+                      track.recorder(label, score.width))
+        return [move(c, trial, profile.of(move.settings) if move.settings else None) for c in cands]
+
+    objective = Objective(problem, views, mem.memetic_res, max(mem.memetic_lod, least), profile.objective)
+    track.enter("memetic", objective.width)
+    final = []
+    for held in holds:
+        with problem.holding(held):
+            pop = start(problem, mem, rng, objective.match_area)
+            final += memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, mem,
+                             rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free,
+                             batch=objective.batch(mem.memetic_batch))
+    final.sort(key=lambda ind: ind.best_loss)
+    checkpoint(final[0].best_z)
+    cands = [Candidate(ind.best_z) for ind in finalists(problem, final, loop.refine_candidates)]
+    for i, cand in enumerate(cands):
+        for move in phase["finalist"]:
+            cand = run(move, [cand], objective, objective)[0]
+        cands[i] = cand
+    checkpoint(cands[0].z)
+    for stage, (res, iters) in enumerate(zip(loop.refine_res, loop.refine_iterations)):
+        previous, objective = objective, Objective(problem, views, res, max(loop.refine_lod, least), profile.objective)
+        for move in phase["stage"] + (phase["last"] if stage == len(loop.refine_res) - 1 else []):
+            cands = run(move, cands, previous if move.steps_before else objective, objective)
+        refined = []
+        for cand in cands:
+            for move in phase["refine"]:
+                cand = run(move, [cand], objective, objective)[0]
+            track.enter("refine", res, reset=True)
+            ind = Individual(cand.z, problem.key(cand.z), "refine", lr=mem.lr * 0.4)
+            adam_steps(ind, iters + 1, objective, problem.clip, mem.reject_ratio, track.on_eval)
+            refined.append(ind.best_z)
+        cands = [Candidate(z) for z in refined]
+        if len(refined) > 1:
+            score, record = scorer(objective, (10_007, 10_008)), track.recorder("choose", res)
+            losses = [score(z) for z in refined]
+            for i, loss in enumerate(losses):
+                record(f"finalist {i}", loss)
+            cands = [cands[int(np.argmin(losses))]]
+        checkpoint(cands[0].z)
+    for move in phase["end"]:
+        cands = run(move, cands, objective, objective)
+    checkpoint(cands[0].z)
+    trace = track.frame()
+    trace["iou"] = pd.Series(ious, dtype=float)
+    return cands[0].z, trace

@@ -1,0 +1,103 @@
+"""Counts read off the class masks: storeys and windows per facade set to what the input views show.
+
+A generator that lists this move has facades (``ipm.facades``): ``counts``, ``facing``,
+``facades``, ``marker``, ``marker_extent``, ``change_count`` and ``quarter_turned``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ipm.facades import marker_turn, read_counts
+from ipm.io.views import Views
+from ipm.problem import Problem
+from ipm.search.moves.base import Move, register
+from ipm.search.objective import ObjectiveSettings, class_masks
+from ipm.settings import Settings
+
+
+@dataclass(frozen=True)
+class CountsSettings(Settings):
+    """Settings of the count reading."""
+
+    KIND = "diff setting"
+    read_counts: bool = True
+    """Before polish and before each refinement stage, set the counts (storeys, windows per facade) to
+    those the input views' class masks show on the facades they face (``ipm.facades``); needs class
+    masks (buildings' window masks) and a ``window_weight`` above 0, else nothing happens."""
+
+
+def reads(profile) -> bool:
+    """Whether the counts are read under ``profile``: on, and the class-mask term weighed."""
+    return profile.of(CountsSettings).read_counts and profile.of(ObjectiveSettings).window_weight > 0
+
+
+def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
+    """``z`` turned by ``angle`` about +y; a quarter turn also trades the footprint's sides
+    (``quarter_turned``), so that the turned object covers the same ground."""
+    n = problem.n_shape
+    if abs(np.cos(angle)) < 0.5:
+        z = problem.with_shape(z, problem.generator.quarter_turned(problem.spec.from_unit(z[:n])))
+    z = np.array(z, np.float64)
+    z[n] += angle
+    return problem.clip(z)
+
+
+def read_counts_into(problem: Problem, views: Views,
+                     z: np.ndarray) -> tuple[np.ndarray, list[str], frozenset[str]]:
+    """``z`` turned when the views' marker class says it faces the wrong way
+    (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
+    class masks show set to what they show (:func:`ipm.facades.read_counts` on the facades the
+    views face; a storey more or less keeps the walls' height: ``change_count``); the
+    changes made; and the counts the views settle, for polish to leave: those read (the
+    next reading would set them again) and those of sides no view faces (no loss tells their
+    values apart). ``z`` itself, no change and
+    nothing settled when the views have no class masks or the generator no counts."""
+    gen, spec, n = problem.generator, problem.spec, problem.n_shape
+    masks = class_masks(gen, views)
+    if masks is None or not gen.counts:
+        return z, [], frozenset()
+    changes = []
+    marker = class_masks(gen, views, gen.marker[0]) if gen.marker else None
+    turn = 0.0 if marker is None else marker_turn(gen, spec.from_unit(z[:n]), problem.to_world(z), views, marker[0])
+    if turn:
+        z = turned(problem, z, turn)
+        changes.append(f"yaw{np.degrees(turn):+.0f}")
+    x = spec.from_unit(z[:n])
+    pose = problem.decode(z)["pose"]
+    seen = gen.seen_counts(pose["yaw"], views.c2w[:, :3, 3] - np.asarray(pose["translation"]))
+    found = read_counts(gen, x, problem.to_world(z), seen, views, masks[0], views.masks)
+    for name, value in found.items():
+        if value != round(x[spec.index[name]]):
+            x = gen.change_count(x, name, value)
+            changes.append(f"{name}={value}")
+    return problem.with_shape(z, x), changes, frozenset(found) | (frozenset(gen.counts) - frozenset(seen))
+
+
+class _Read(Move):
+    settings = CountsSettings
+
+    def applies(self, problem, profile) -> bool:
+        return reads(profile)
+
+    def __call__(self, cand, trial, settings):
+        z, changes, settled = read_counts_into(trial.problem, trial.views, cand.z)
+        for change in changes:
+            trial.record(change, np.nan)
+        cand.z, cand.settled = z, settled
+        return cand
+
+
+@register
+class ReadFinalist(_Read):
+    """The counts read into each finalist of the memetic stage (and settled for polish)."""
+
+    name, phase = "read", "finalist"
+
+
+@register
+class ReadBeforeStage(_Read):
+    """The counts read again into each candidate before its Adam run of a stage."""
+
+    name, phase, label = "read again", "refine", "read"

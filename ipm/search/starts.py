@@ -1,0 +1,35 @@
+"""Where the search starts: the memetic stage's first population (a pluggable part of the loop).
+
+A start is a callable ``(problem, settings, rng, prepare) -> list[Individual]`` (``settings``:
+``ipm.optim.memetic.MemeticSettings``; ``prepare`` adjusts each start, e.g. its scale). Today's
+is :func:`preset_start`; a learned proposal is another, and the loop takes either unchanged.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ipm.optim.memetic import Individual, MemeticSettings
+from ipm.problem import Problem
+
+
+def preset_start(problem: Problem, settings: MemeticSettings, rng: np.random.Generator,
+                 prepare=lambda z: z) -> list[Individual]:
+    """The generator's presets and random samples (``random_share`` of them), spread over yaw bins
+    and, for an unknown camera, over its pitch (``UnknownCamera.spread``)."""
+    presets = list(problem.generator.presets.items())
+    n_random = int(round(settings.random_share * settings.population))
+    bins = rng.permutation(np.resize(np.arange(settings.yaw_bins), max(settings.population, settings.yaw_bins)))
+    cameras = [None] * settings.population
+    if problem.camera is not None:
+        cameras = problem.camera.spread(settings.population, rng)
+    pop = []
+    for i in range(settings.population):
+        yaw = (bins[i] + rng.random()) / settings.yaw_bins * 2 * np.pi
+        if i < settings.population - n_random:
+            name, x = presets[i % len(presets)]
+            u = problem.spec.to_unit(x)
+        else:
+            name, u = "random", rng.random(problem.n_shape)
+        z = prepare(problem.initial_z(u, yaw, cameras[i]))
+        pop.append(Individual(z, problem.key(z), name, lr=settings.lr))
+    return pop

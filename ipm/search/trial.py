@@ -1,0 +1,100 @@
+"""What a move of the search is given: its candidates, a trial helper (Adam runs, races, scores) and the trace."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from ipm.optim.memetic import Individual, adam_steps
+from ipm.problem import Problem
+
+TRACE_COLUMNS = ["stage", "res", "eval", "origin", "loss", "best", "seconds"]
+"""Columns of trace.csv: one row per evaluation, plus a row per candidate a stage scores by name."""
+
+
+@dataclass
+class Candidate:
+    """A point the search carries between stages, and the parameters the views settle for it."""
+
+    z: np.ndarray
+    settled: frozenset[str] = field(default_factory=frozenset)
+    """Counts the views settle (read off class masks, or of sides no view faces): polish leaves them."""
+
+
+def scorer(objective, seeds: tuple[int, ...]) -> Callable[[np.ndarray], float]:
+    """Loss of a point averaged over fixed render ``seeds`` (both sides of a comparison alike)."""
+    return lambda x: float(np.mean([objective(x, seed=s)[0] for s in seeds]))
+
+
+class Tracker:
+    """The trace rows and the progress bar of one search; ``best`` is the running best loss."""
+
+    def __init__(self, total: int, progress: bool):
+        self.rows, self.t0 = [], time.perf_counter()
+        self.stage, self.res, self.best = "memetic", 0, np.inf
+        self.bar = tqdm(total=total, desc="reconstruct", unit="eval", disable=not progress, leave=False)
+
+    def row(self, stage: str, res: int, origin: str, loss: float, best: float) -> None:
+        self.rows.append((stage, res, len(self.rows), origin, loss, best, time.perf_counter() - self.t0))
+
+    def on_eval(self, ind: Individual) -> None:
+        """A row for an evaluation of the current stage (at the width its steps render)."""
+        self.best = min(self.best, ind.best_loss)
+        self.row(self.stage, self.res, ind.origin, ind.loss, self.best)
+        self.bar.update(1)
+        self.bar.set_postfix(stage=self.stage, res=self.res, best=f"{self.best:.5f}")
+
+    def recorder(self, stage: str, res: int) -> Callable[[str, float], None]:
+        """A trace row per candidate a stage scores by name, at the width it scores."""
+        return lambda name, loss: self.row(stage, res, name, loss, min(self.best, loss))
+
+    def enter(self, stage: str, res: int, reset: bool = False) -> None:
+        self.stage, self.res = stage, res
+        if reset:
+            self.best = np.inf
+
+    def frame(self) -> pd.DataFrame:
+        self.bar.close()
+        return pd.DataFrame(self.rows, columns=TRACE_COLUMNS)
+
+
+class Trial:
+    """How a move tries points: Adam steps under ``steps`` (an objective), compared under ``score``
+    (an objective at the stage's width); every evaluation and scored candidate goes to the trace."""
+
+    def __init__(self, problem: Problem, steps, score, lr: float, reject_ratio: float, views=None, profile=None,
+                 on_eval: Callable = lambda ind: None, record: Callable = lambda name, loss: None):
+        self.problem, self.steps, self.score, self.views, self.profile = problem, steps, score, views, profile
+        self.lr, self.reject_ratio = lr, reject_ratio
+        self.on_eval, self.record = on_eval, record
+
+    def scorer(self, seeds: tuple[int, ...]) -> Callable[[np.ndarray], float]:
+        """The ``score`` objective's loss averaged over fixed render ``seeds``."""
+        return scorer(self.score, seeds)
+
+    def tried(self, start: np.ndarray, name: str, steps: int, score: Callable,
+              clip: Callable | None = None, objective=None) -> tuple[np.ndarray, float]:
+        """The best point of ``steps`` Adam steps from ``start`` (``start`` itself for none) under
+        ``objective`` (default: ``steps``), projected by ``clip`` (default ``problem.clip``), and its
+        ``score``, recorded as ``name``."""
+        problem = self.problem
+        ind = Individual(start, problem.key(start), name, lr=self.lr * 0.4)
+        adam_steps(ind, steps, objective or self.steps, clip or problem.clip, self.reject_ratio, self.on_eval)
+        cand = ind.z if ind.best_z is None else ind.best_z
+        loss = score(cand)
+        self.record(name, loss)
+        return cand, loss
+
+    def race(self, z: np.ndarray, name: str, starts: list[tuple[str, np.ndarray]], steps: int, margin: float,
+             score: Callable) -> np.ndarray:
+        """``z`` (recorded as ``name``) and each of ``starts`` (name, point) given ``steps`` Adam steps
+        and compared by ``score``: the lowest start replaces ``z`` only if its loss is lower than
+        ``z``'s by more than ``margin`` (a fraction). How sweeps try starts the fit would not reach."""
+        kept = self.tried(z, name, steps, score)
+        tried = [self.tried(alt, alt_name, steps, score) for alt_name, alt in starts]
+        best = min(tried, key=lambda start: start[1], default=kept)
+        return best[0] if best[1] < kept[1] * (1 - margin) else kept[0]
