@@ -5,10 +5,10 @@ the camera ray traded against size). The world-frame IoU of :mod:`ipm.metrics.si
 mixes both errors; :func:`shape_iou` removes the placement part by aligning the
 reconstruction to the reference first, and reports the alignment it needed.
 
-The alignment moves the reconstruction by ``x -> s R_y(yaw) (x - c) + c + t`` with the pivot
-``c`` the reconstruction's *base centre* (bounding-box centre in x and z, lowest y; the world
-is y-up and objects stand on the ground), so ``t`` is the displacement of the base centre and
-the yaw and the scale leave the base where it was. Instead of moving the mesh, every
+The alignment moves the reconstruction by ``x -> s R_y(yaw) (x - c) + c + t`` (``R_y``:
+``ipm.pose.yaw_matrix``) with the pivot ``c`` the reconstruction's *base centre* (bounding-box
+centre in x and z, lowest y; the world is y-up and objects stand on the ground), so ``t`` is the
+displacement of the base centre and the yaw and the scale leave the base where it was. Instead of moving the mesh, every
 candidate moves the camera rays by the inverse transform, so the ray casting scene of the
 (possibly 600k-triangle) reconstruction is built once.
 """
@@ -20,6 +20,7 @@ import numpy as np
 import trimesh
 from scipy.optimize import minimize
 
+from ipm.pose import yaw_matrix
 from ipm.runtime import thread_count
 
 from .silhouette import (FOV_DEG, bounding_sphere, camera_rays, check_reference, fibonacci_cameras, finite_part,
@@ -27,12 +28,6 @@ from .silhouette import (FOV_DEG, bounding_sphere, camera_rays, check_reference,
 
 SCALE_RANGE = 2.0  # the scale is searched within [min(1, s0) / 2, 2 max(1, s0)], s0 the bounding-box match
 SHIFT_LIMIT = 2.0  # |t| is kept within 2 reference radii (the cameras see about 2.9 r across)
-
-
-def yaw_matrix(yaw: float) -> np.ndarray:
-    """Rotation by ``yaw`` radians about the world's vertical (+y) axis, right-handed."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def similarity_matrix(yaw: float, translation, scale: float, pivot) -> np.ndarray:
