@@ -62,7 +62,7 @@ def run_ga(objective, settings, stats, budget: int, seed: int):
 def run_random(objective, budget: int, seed: int):
     from tqdm import tqdm
 
-    from ipm.optim.ga import random_genes
+    from ipm.optim.ga_statistics import random_genes
 
     genes = random_genes(objective.genome.spec, np.random.default_rng(seed), budget)
     losses = np.array([objective(g) for g in tqdm(genes, desc="random", leave=False, disable=not PROGRESS)])
@@ -75,7 +75,7 @@ def run_cma(objective, budget: int, seed: int, sigma0: float = 0.3):
     import cma
     from tqdm import tqdm
 
-    from ipm.optim.ga import snap
+    from ipm.optim.ga_statistics import snap
 
     spec = objective.genome.spec
     es = cma.CMAEvolutionStrategy(np.full(len(spec), 0.5), sigma0,
@@ -103,7 +103,7 @@ def describe(objective, g, reference, options) -> dict:
     """Objective loss, TSim in the input view and 64-view IoU of genome ``g``."""
     from ipm.losses.tree import TreeStats, loss_terms
     from ipm.metrics import silhouette_iou
-    from ipm.methods.ga import output_lod
+    from ipm.methods.ga_options import output_lod
 
     images, _ = objective.render(g)
     target = objective.targets[0]
@@ -175,8 +175,10 @@ def main() -> None:
     configure_threads(args.threads)
     from ipm.generators import get_generator
     from ipm.io import load_mesh, load_views
-    from ipm.methods.ga import collect_generator_statistics, get_options, problem_objective
-    from ipm.optim.ga import GeneStatistics, get_settings
+    from ipm.methods.ga import collect_generator_statistics, problem_objective
+    from ipm.methods.ga_options import get_options
+    from ipm.optim.ga_settings import get_settings
+    from ipm.optim.ga_statistics import GeneStatistics
     from ipm.synth import load_case, write_reference
 
     out = Path(args.out)

@@ -108,7 +108,7 @@ def test_methods_refuse_generators_and_stages_they_cannot_use(tmp_path, tiny_cas
 
 
 def test_prepare_writes_statistics_the_ga_reads(tmp_path):
-    from ipm.optim.ga import GeneStatistics
+    from ipm.optim.ga_statistics import GeneStatistics
 
     out = tmp_path / "stats" / "trees.json"
     res = ipm("prepare", "ga", "--generator", "trees", "--profile", "smoke", "--out", str(out), "--quiet",

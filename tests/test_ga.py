@@ -9,8 +9,9 @@ import pytest
 from ipm.errors import UserError
 from ipm.generators.base import make_spec
 from ipm.optim import ALGORITHMS
-from ipm.optim.ga import (GA_PROFILES, ElementaryGA, GeneStatistics, TreeGA, collect_statistics, crossover,
-                          genes_to_change, get_settings, mutate, plan_tree, random_genes, snap)
+from ipm.optim.ga import ElementaryGA, TreeGA, crossover, genes_to_change, mutate, plan_tree
+from ipm.optim.ga_settings import GA_PROFILES, get_settings
+from ipm.optim.ga_statistics import GeneStatistics, collect_statistics, random_genes, snap
 
 SPEC = make_spec([(f"c{i}", -1.0, 1.0, False, 0.0) for i in range(8)]
                  + [("k5", 0, 4, True, 0), ("flag", 0, 1, True, 0), ("k10", 0, 9, True, 0)])
@@ -150,11 +151,16 @@ def test_statistics_roundtrip_and_malformed_files(tmp_path, family_stats):
         "negative.json": json.dumps({**d, "v": [-1.0] * len(d["v"])}),
         "missing.json": json.dumps({k: v for k, v in d.items() if k != "good"}),
         "good_gt_counts.json": json.dumps({**d, "good": [[c + 1 for c in row] for row in d["counts"]]}),
+        "h.json": json.dumps({**d, "h": 1.0}),
+        "n_samples.json": json.dumps({**d, "n_samples": 0}),
+        "prior.json": json.dumps({**d, "prior": "2"}),
     }
     for name, text in broken.items():
         (tmp_path / name).write_text(text)
         with pytest.raises(UserError):
             GeneStatistics.load(tmp_path / name)
+    with pytest.raises(UserError, match=r"h\.json: field h must be > 0 and < 1, got 1\.0"):
+        GeneStatistics.load(tmp_path / "h.json")
     with pytest.raises(UserError, match="not found"):
         GeneStatistics.load(tmp_path / "absent.json")
     other = make_spec([("a", 0.0, 1.0, False, 0.0)])

@@ -147,7 +147,7 @@ def test_ga_on_a_tree_writes_a_placed_two_part_mesh(tree_run, tree_case):
     from ipm.generators import get_generator
     from ipm.methods import METHODS, row_label
     from ipm.metrics import silhouette_iou
-    from ipm.optim.ga import GA_PROFILES
+    from ipm.optim.ga_settings import GA_PROFILES
     from ipm.reference_lines import bounding_sphere
 
     out, info = tree_run
@@ -203,7 +203,7 @@ def test_ga_is_deterministic(tmp_path, tree_case, tree_stats):
 
 def test_statistics_are_checked_against_the_genome(tmp_path, tree_case, tree_stats):
     from ipm.methods.ga import collect_generator_statistics, run_ga
-    from ipm.optim.ga import GeneStatistics
+    from ipm.optim.ga_statistics import GeneStatistics
 
     stats = GeneStatistics.load(tree_stats)
     assert stats.names[-4:] == ("pose_yaw", "pose_lateral", "pose_depth", "pose_scale")
@@ -235,7 +235,8 @@ def test_ga_on_a_cup_uses_silhouettes(tmp_path, tiny_case):
 
 
 def test_bad_input_is_a_user_error(tmp_path, tree_case, tiny_case):
-    from ipm.methods.ga import get_options, run_ga
+    from ipm.methods.ga import run_ga
+    from ipm.methods.ga_options import get_options
 
     with pytest.raises(UserError, match="unknown generator"):
         run_ga(tree_case / "transforms.json", tmp_path / "a", generator="castles", profile="smoke")
@@ -258,7 +259,7 @@ def test_bad_input_is_a_user_error(tmp_path, tree_case, tiny_case):
         run_ga(case / "transforms.json", tmp_path / "d", profile="smoke")
     with pytest.raises(UserError, match="no label images"):
         run_ga(case / "transforms.json", tmp_path / "e", profile="smoke", labels="semantic")
-    with pytest.raises(UserError, match="unknown GA labels"):
+    with pytest.raises(UserError, match=r"unknown labels 'paint' \(known: auto, semantic, rgb\)"):
         get_options("smoke", labels="paint")
     assert not any((tmp_path / n).exists() for n in "abcde")
 
@@ -276,7 +277,8 @@ def test_labels_from_the_photo_or_the_label_images(tree_case):
 
 def test_turned_rays_show_the_object_turned_about_its_base():
     """The symmetry prior's views: rays turned by -a about the base's vertical = the mesh turned by a."""
-    from ipm.methods.ga import _turned_rays, _yaw_matrix, mirror_about
+    from ipm.losses.impostors import mirror_about, turned_rays
+    from ipm.pose import yaw_matrix
     from ipm.render.cameras import orbit_camera
     from ipm.render.semantic import LabelCaster, pixel_rays
 
@@ -285,9 +287,9 @@ def test_turned_rays_show_the_object_turned_about_its_base():
     base = np.array([0.2, 0.0, 0.1])
     c2w = orbit_camera(np.array([0.2, 0.5, 0.1]), 4.0, 20.0, 10.0)
     rays = pixel_rays(c2w, 0.7, 48, 48)
-    turned = LabelCaster(box.vertices, box.faces).labels(_turned_rays(rays, base, 4))[0]
+    turned = LabelCaster(box.vertices, box.faces).labels(turned_rays(rays, base, 4))[0]
     for k in range(4):
-        rot = _yaw_matrix(np.pi / 2 * k)
+        rot = yaw_matrix(np.pi / 2 * k)
         moved = (box.vertices - base) @ rot.T + base
         direct = LabelCaster(moved, box.faces).labels(rays)[0]
         assert (turned[k] != direct).mean() < 0.003, k
@@ -297,3 +299,28 @@ def test_turned_rays_show_the_object_turned_about_its_base():
     mask[:, 1:3] = True
     assert np.array_equal(mirror_about(mask, 4.0), mask[:, ::-1])
     assert mirror_about(mask, 3.0)[0].tolist() == [False, False, False, True, True, False, False, False]
+
+
+def test_the_genome_writes_its_pose_as_the_differentiable_path_reads_one():
+    """One pose convention (``ipm.pose``): the GA's params.json pose, taken as the differentiable
+    path's pose genes, decodes to itself and puts the object's vertices where the GA put them."""
+    from ipm.generators import get_generator
+    from ipm.methods.ga_genome import Genome
+    from ipm.pose import POSE_KEYS
+    from ipm.problem import Problem
+    from ipm.render.cameras import orbit_camera
+
+    gen = get_generator("dishes")
+    genome = Genome(gen, np.array([0.2, 0.0, -0.1]), 0.8, orbit_camera(np.array([0.0, 0.4, 0.0]), 3.0, 30.0, 15.0))
+    g = genome.spec.to_unit(genome.spec.default)
+    g[genome.n_shape:] = [0.3, 0.8, 0.2, 0.6]
+    mesh, info = genome.world_mesh(g, 1)
+    pose = info["pose"]
+    assert tuple(pose) == POSE_KEYS and pose["tilt_x"] == pose["tilt_z"] == 0.0
+    problem = Problem(gen, np.zeros(3), 1.0)
+    z = np.concatenate([g[: genome.n_shape], [pose["yaw"], 0.0, 0.0, *pose["translation"], np.log(pose["scale"])]])
+    decoded = problem.decode(z)["pose"]
+    assert tuple(decoded) == POSE_KEYS and decoded["yaw"] == pose["yaw"]
+    np.testing.assert_allclose(decoded["scale"], pose["scale"], rtol=1e-12)
+    np.testing.assert_allclose(decoded["translation"], pose["translation"], rtol=1e-12)
+    np.testing.assert_allclose(problem.to_world(z)(gen.mesh(genome.params(g), 1).vertices), mesh.vertices, atol=1e-5)
