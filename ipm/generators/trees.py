@@ -37,26 +37,25 @@ map is not continuous: a count that rounds differently, a split or a thinned chi
 branches, so this generator is not differentiable (``differentiable = False``) and is meant for
 the genetic search.
 
-Geometry: stems are closed tubes (rings along the polyline, flat end caps, outward winding);
-leaves are closed, very thin lenses (the leaf outline plus one apex on each side), so each leaf
-shows outward-facing triangles to both sides, as one-sided Mitsuba area emitters need, and the
-whole tree stays a union of closed parts (volumetric metrics). Object frame: y up, trunk base at
-the origin (shifted up when drooping branches reach below it, so the lowest point is y = 0),
-scaled to ``height``. Level of detail sets the ring points per level and the turtle sub-steps
-per segment; the branching structure (the branch graph) does not depend on it.
+Geometry (stems as closed tubes, leaves as thin closed lenses, the branch graph) is in
+``ipm.generators.trees_geometry``. Object frame: y up, trunk base at the origin (shifted up when
+drooping branches reach below it, so the lowest point is y = 0), scaled to ``height``. Level of
+detail sets the ring points per level and the turtle sub-steps per segment; the branching
+structure (the branch graph) does not depend on it.
 
 Complexity is capped (stems per level, leaves per tree, see ``MAX_STEMS`` and ``MAX_LEAVES``):
-beyond a cap, counts are scaled down evenly, so random parameter vectors stay cheap.
+beyond a cap, counts are scaled down evenly, so random parameter vectors stay cheap. (Over 450
+lines: W-P's growth is one algorithm over shared parameters, random streams and caps.)
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from ipm.errors import UserError
 from ipm.generators import GENERATORS
 from ipm.generators.base import Generator, Mesh, make_spec
+from ipm.generators.trees_geometry import (BranchGraph, Stems, cross, curve_per_segment, graph_arrays, leaf_mesh,
+                                          rodrigues, shape_ratio, tube_mesh, unit)
 from ipm.io.semantic import BRANCH, FOLIAGE, LABEL_NAMES
 
 N_LEVELS = 3
@@ -66,15 +65,6 @@ SHAPES = ("conical", "spherical", "hemispherical", "cylindrical", "tapered_cylin
 """Crown shapes, in W-P's numbering (``shape`` parameter)."""
 LEAF_SHAPES = ("oval", "rectangle", "diamond", "needle")
 """Leaf outlines (``leaf_shape`` parameter)."""
-_LEAF_RIMS = (
-    np.array([[0.0, 0.0], [0.3, -0.5], [0.75, -0.4], [1.0, 0.0], [0.75, 0.4], [0.3, 0.5]]),
-    np.array([[0.0, -0.5], [1.0, -0.5], [1.0, 0.5], [0.0, 0.5]]),
-    np.array([[0.0, 0.0], [0.5, -0.5], [1.0, 0.0], [0.5, 0.5]]),
-    np.array([[0.0, -0.5], [1.0, 0.0], [0.0, 0.5]]),
-)
-"""Leaf outlines in (along, across) leaf units, counter-clockwise seen from the leaf's upper side."""
-LEAF_THICKNESS = 0.05
-"""Half thickness of a leaf lens, as a fraction of the smaller of leaf length and width."""
 MAX_STEMS = (64, 400, 2000, 4000)
 """Most stems (with clones) per level: trunk, 1, 2, 3."""
 MAX_LEAVES = 10000
@@ -155,102 +145,8 @@ _LEAF_LEVEL = N_LEVELS + 1
 (_S_TRUNK, _S_NOISE, _S_PHASE, _S_SPLIT, _S_PLACE, _S_CHILD, _S_AZ0, _S_AZJIT) = range(8)
 
 
-@dataclass(frozen=True)
-class BranchGraph:
-    """The tree's skeleton: segment joints and parent -> child edges, in the object frame."""
-
-    positions: np.ndarray
-    """Joint positions, shape (V, 3)."""
-    radii: np.ndarray
-    """Stem radius at each joint, shape (V,)."""
-    edges: np.ndarray
-    """Edges (parent joint, child joint), shape (E, 2); node 0 is the trunk base."""
-    levels: np.ndarray
-    """Stem level of each joint (0 trunk), shape (V,)."""
-    n_leaves: int
-    """Number of leaves on the tree."""
-
-    @property
-    def n_vertices(self) -> int:
-        """Vertex count of the branch graph (the paper's complexity regulariser)."""
-        return len(self.positions)
-
-
-@dataclass
-class _Stems:
-    """All stems of one level (clones included), sampled at ``res * substeps + 1`` points."""
-
-    pos: np.ndarray  # (N, M+1, 3) sample points; samples before m0 repeat the start
-    dirs: np.ndarray  # (N, M+1, 3) direction of travel from each sample
-    xax: np.ndarray  # (N, M+1, 3) body x axis (ring frame), orthogonal to dirs
-    rad: np.ndarray  # (N, M+1) radius
-    j0: np.ndarray  # (N,) first segment (0 for stems, the split joint for clones)
-    length: np.ndarray  # (N,) length of the whole stem
-    r0: np.ndarray  # (N,) base radius
-    mult: np.ndarray  # (N, S) share of children per segment (halved by splits)
-    tpar: np.ndarray  # (N,) position on the parent (0..1); 1 for the trunk
-    plen: np.ndarray  # (N,) length of the parent (1 for the trunk)
-    lmax: np.ndarray  # (N,) drawn length factor (W-P length_child_max)
-    parent: np.ndarray  # (N,) parent stem index in the previous level (-1 trunk)
-    clone_of: np.ndarray  # (N,) stem this one split from (-1 for none)
-    res: int
-    sub: int
-
-    def __len__(self) -> int:
-        return len(self.j0)
-
-    @property
-    def m0(self) -> np.ndarray:
-        return self.j0 * self.sub
-
-
 def _rng(seed: int, level: int, purpose: int) -> np.random.Generator:
     return np.random.default_rng([seed, level, purpose])
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], -1)
-
-
-def _rot(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rotate rows of ``v`` about unit ``axis`` rows by ``angle`` (right-hand rule), Rodrigues."""
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    return v * c + _cross(axis, v) * s + axis * (np.sum(axis * v, 1)[:, None] * (1.0 - c))
-
-
-def shape_ratio(shape: int, r: np.ndarray) -> np.ndarray:
-    """W-P's ShapeRatio: relative branch length at ``r`` = distance from the top / crown height."""
-    r = np.clip(r, 0.0, 1.0)
-    if shape == 0:
-        return 0.2 + 0.8 * r
-    if shape == 1:
-        return 0.2 + 0.8 * np.sin(np.pi * r)
-    if shape == 2:
-        return 0.2 + 0.8 * np.sin(0.5 * np.pi * r)
-    if shape == 3:
-        return np.ones_like(r)
-    if shape == 4:
-        return 0.5 + 0.5 * r
-    if shape == 5:
-        return np.where(r <= 0.7, r / 0.7, (1.0 - r) / 0.3)
-    if shape == 6:
-        return 1.0 - 0.8 * r
-    return np.where(r <= 0.7, 0.5 + 0.5 * r / 0.7, 0.5 + 0.5 * (1.0 - r) / 0.3)
-
-
-def _curve_per_segment(res: int, curve: float, back: float) -> np.ndarray:
-    """Deterministic turn (radians) of each segment about the stem's x axis (W-P 4.1)."""
-    if back == 0.0:
-        return np.full(res, np.radians(curve) / res)
-    half = res / 2.0
-    first = np.arange(res) < half
-    return np.where(first, np.radians(curve) / half, np.radians(back) / half)
 
 
 class _Tree:
@@ -262,7 +158,7 @@ class _Tree:
         self.sub, self.rings = _LOD[lod]
 
     # ---------------------------------------------------------------- growth of one level
-    def grow(self, level: int, res: int, start: dict, cap: int) -> _Stems:
+    def grow(self, level: int, res: int, start: dict, cap: int) -> Stems:
         """Grow the stems of ``level`` from their starts (originals), splitting off clones."""
         p, k = self.p, self.sub
         if level == 0:
@@ -272,7 +168,7 @@ class _Tree:
             q = f"l{level}_"
             curve, back, curve_v = p[q + "curve"], p[q + "curve_back"], p[q + "curve_v"]
             rate, taper = p[q + "seg_splits"], p["taper"]
-        turn = _curve_per_segment(res, curve, back)
+        turn = curve_per_segment(res, curve, back)
         noise_amp = np.radians(curve_v) / res
         attract = p["attract_up"] if level >= 1 else 0.0
         base_joint = min(max(1, int(round(p["base_size"] * res))), res - 1) if level == 0 else -1
@@ -330,26 +226,26 @@ class _Tree:
                         P[:, m + 1] = cur_p
                         continue
                     ang = np.full(n, turn[j] / k)
-                    cur_d = cur_d * np.cos(ang)[:, None] + _cross(cur_x, cur_d) * np.sin(ang)[:, None]
+                    cur_d = cur_d * np.cos(ang)[:, None] + cross(cur_x, cur_d) * np.sin(ang)[:, None]
                     if noise_amp > 0:
-                        y = _cross(cur_d, cur_x)
+                        y = cross(cur_d, cur_x)
                         ax = cur_x * np.cos(psi[:, j])[:, None] + y * np.sin(psi[:, j])[:, None]
-                        cur_d, cur_x = _rot(cur_d, ax, noise[:, j] / k), _rot(cur_x, ax, noise[:, j] / k)
+                        cur_d, cur_x = rodrigues(cur_d, ax, noise[:, j] / k), rodrigues(cur_x, ax, noise[:, j] / k)
                     if np.any(comp_rate != 0):
-                        ax = _unit(comp_axis - np.sum(comp_axis * cur_d, 1)[:, None] * cur_d)
-                        cur_d, cur_x = _rot(cur_d, ax, comp_rate), _rot(cur_x, ax, comp_rate)
+                        ax = unit(comp_axis - np.sum(comp_axis * cur_d, 1)[:, None] * cur_d)
+                        cur_d, cur_x = rodrigues(cur_d, ax, comp_rate), rodrigues(cur_x, ax, comp_rate)
                     if attract != 0.0:
                         cosd = np.clip(cur_d[:, 1], -1.0, 1.0)
                         decl = np.arccos(cosd)
                         a = attract * decl / M
                         a = np.clip(a, -(np.pi - decl), decl)
-                        ax = _cross(cur_d, _UP)
+                        ax = cross(cur_d, _UP)
                         ok = np.linalg.norm(ax, axis=1) > 1e-9
                         a = np.where(ok, a, 0.0)
-                        ax = _unit(ax)
-                        cur_d, cur_x = _rot(cur_d, ax, a), _rot(cur_x, ax, a)
-                    cur_d = _unit(cur_d)
-                    cur_x = _unit(cur_x - np.sum(cur_x * cur_d, 1)[:, None] * cur_d)
+                        ax = unit(ax)
+                        cur_d, cur_x = rodrigues(cur_d, ax, a), rodrigues(cur_x, ax, a)
+                    cur_d = unit(cur_d)
+                    cur_x = unit(cur_x - np.sum(cur_x * cur_d, 1)[:, None] * cur_d)
                     D[:, m], X[:, m] = cur_d, cur_x
                     cur_p = cur_p + cur_d * (b["seg_len"] / k)[:, None]
                     P[:, m + 1] = cur_p
@@ -368,7 +264,7 @@ class _Tree:
             rad = rad * (p["flare"] * (100.0 ** yf - 1.0) / 100.0 + 1.0)[None, :]
         seg_of = np.minimum(np.arange(M + 1) // k, res - 1)
         rad = np.maximum(rad * np.sqrt(cat["mult"][:, seg_of]), MIN_RADIUS)
-        return _Stems(pos=cat["P"], dirs=cat["D"], xax=cat["X"], rad=rad, j0=cat["j0"], length=length, r0=r0,
+        return Stems(pos=cat["P"], dirs=cat["D"], xax=cat["X"], rad=rad, j0=cat["j0"], length=length, r0=r0,
                       mult=cat["mult"], tpar=start["tpar"][src], plen=start["plen"][src], lmax=start["lmax"][src],
                       parent=start["parent"][src], clone_of=cat["clone_of"],
                       res=res, sub=k)
@@ -388,13 +284,13 @@ class _Tree:
         w = rng.random((len(who), 2))
         ang = np.radians(np.maximum(split_deg + (2 * u[:, 0] - 1) * split_v - decl, 0.0))
         psi = np.repeat(w[:, 0] * 2 * np.pi, cnt) + 2 * np.pi * c / tot
-        ax = x * np.cos(psi)[:, None] + _cross(d, x) * np.sin(psi)[:, None]
-        d, x = _rot(d, ax, ang), _rot(x, ax, ang)
+        ax = x * np.cos(psi)[:, None] + cross(d, x) * np.sin(psi)[:, None]
+        d, x = rodrigues(d, ax, ang), rodrigues(x, ax, ang)
         if level >= 1:  # spread about the vertical axis (W-P), alternating sides
             spread = np.radians(20.0 + 0.75 * (30.0 + np.abs(decl - 90.0)) * u[:, 1] ** 2)
             sign = np.where(c % 2 == 0, 1.0, -1.0) * np.repeat(np.where(w[:, 1] < 0.5, 1.0, -1.0), cnt)
             up = np.broadcast_to(_UP, d.shape)
-            d, x = _rot(d, up, sign * spread), _rot(x, up, sign * spread)
+            d, x = rodrigues(d, up, sign * spread), rodrigues(x, up, sign * spread)
         rate = -SPLIT_RETURN * ang / max((res - j) * k, 1)
         m = mult[rep].copy()
         m[:, j:] /= tot[:, None]
@@ -409,18 +305,7 @@ class _Tree:
         return {"orig": (cur_d, cur_x, comp_axis, comp_rate, mult), "clones": clones}
 
     # ---------------------------------------------------------------- attachment points
-    @staticmethod
-    def sample(st: _Stems, idx: np.ndarray, t: np.ndarray):
-        """Position, direction, x axis and radius of stems ``idx`` at relative length ``t``."""
-        M = st.res * st.sub
-        mf = np.clip(t * M, st.m0[idx], M - 1e-9)
-        mi = np.floor(mf).astype(int)
-        f = (mf - mi)[:, None]
-        pos = st.pos[idx, mi] * (1 - f) + st.pos[idx, mi + 1] * f
-        rad = st.rad[idx, mi] * (1 - f[:, 0]) + st.rad[idx, mi + 1] * f[:, 0]
-        return pos, st.dirs[idx, mi], st.xax[idx, mi], rad
-
-    def place(self, st: _Stems, count: np.ndarray, t_lo: np.ndarray, level: int, purpose: int, cap: int):
+    def place(self, st: Stems, count: np.ndarray, t_lo: np.ndarray, level: int, purpose: int, cap: int):
         """Evenly jittered positions of ``count`` children per stem over [t_lo, 1], thinned after splits."""
         count = np.maximum(count, 0.0)
         if count.sum() > cap:
@@ -436,7 +321,7 @@ class _Tree:
         keep = keep_u < st.mult[idx, seg]
         return idx[keep], c[keep], t[keep]
 
-    def azimuth(self, st: _Stems, idx, c, rotate: float, level: int):
+    def azimuth(self, st: Stems, idx, c, rotate: float, level: int):
         """Angles about the parent of its ``c``-th children: W-P's ``rotate`` (negative: alternating)."""
         phi0 = _rng(self.seed, level, _S_AZ0).random(len(st)) * 2 * np.pi
         jit = (_rng(self.seed, level, _S_AZJIT).random(len(idx)) * 2 - 1) * np.radians(self.p["rotate_v"])
@@ -446,7 +331,7 @@ class _Tree:
             step = c * np.pi + (c // 2) * np.radians(180.0 + rotate)
         return phi0[idx] + step + jit
 
-    def children(self, par: _Stems, level: int) -> dict | None:
+    def children(self, par: Stems, level: int) -> dict | None:
         """Starts of the level-``level`` stems on the stems ``par`` of the level above (W-P 4.3)."""
         p = self.p
         q = f"l{level}_"
@@ -477,7 +362,7 @@ class _Tree:
             length = plen * lmax * shape_ratio(int(p["shape"]), (1.0 - t) / max(1.0 - t_base, 1e-6))
         else:
             length = lmax * plen * (1.0 - 0.6 * t)
-        pos, tan, xax, prad = self.sample(par, idx, t)
+        pos, tan, xax, prad = par.at(idx, t)
         r0 = par.r0[idx] * (length / np.maximum(plen, 1e-9)) ** p["ratio_power"]
         r0 = np.maximum(np.minimum(r0, 0.95 * prad), MIN_RADIUS)
         da, dv = p[q + "down_angle"], p[q + "down_angle_v"]
@@ -487,16 +372,16 @@ class _Tree:
             ratio = (1.0 - t) / max(1.0 - t_base, 1e-6)
             down = da + dv * (1.0 - 2.0 * shape_ratio(0, ratio))
         phi = self.azimuth(par, idx, c, p[q + "rotate"], level)
-        yax = _cross(tan, xax)
+        yax = cross(tan, xax)
         radial = xax * np.cos(phi)[:, None] + yax * np.sin(phi)[:, None]
         dn = np.radians(down)[:, None]
         d = tan * np.cos(dn) + radial * np.sin(dn)
-        x = _unit(_cross(tan, radial))
+        x = unit(cross(tan, radial))
         keep = length > 1e-3
         if not keep.any():
             return None
         sel = lambda a: a[keep]  # noqa: E731
-        return dict(p=sel(pos), d=_unit(sel(d)), x=sel(x), length=sel(length), r0=sel(r0), tpar=sel(t),
+        return dict(p=sel(pos), d=unit(sel(d)), x=sel(x), length=sel(length), r0=sel(r0), tpar=sel(t),
                     plen=sel(plen), lmax=sel(lmax), parent=sel(idx))
 
     # ---------------------------------------------------------------- the whole tree
@@ -517,7 +402,7 @@ class _Tree:
             stems.append(self.grow(level, int(p[f"l{level}_curve_res"]), start, MAX_STEMS[level]))
         return stems
 
-    def leaves(self, st: _Stems, size: float):
+    def leaves(self, st: Stems, size: float):
         """Leaf frames on the deepest stems: base point, along axis, across axis, normal."""
         p = self.p
         if p["leaves"] <= 0:
@@ -530,119 +415,19 @@ class _Tree:
             return None
         rng = _rng(self.seed, _LEAF_LEVEL, _S_CHILD)
         u = rng.random((len(idx), 2))
-        pos, tan, xax, _ = self.sample(st, idx, t)
+        pos, tan, xax, _ = st.at(idx, t)
         phi = self.azimuth(st, idx, c, 137.5, _LEAF_LEVEL)
-        radial = xax * np.cos(phi)[:, None] + _cross(tan, xax) * np.sin(phi)[:, None]
+        radial = xax * np.cos(phi)[:, None] + cross(tan, xax) * np.sin(phi)[:, None]
         dn = np.radians(p["leaf_down_angle"] + (2 * u[:, 0] - 1) * 15.0)[:, None]
-        along = _unit(tan * np.cos(dn) + radial * np.sin(dn))
+        along = unit(tan * np.cos(dn) + radial * np.sin(dn))
         nrm = _UP - along[:, 1:2] * along
         bad = np.linalg.norm(nrm, axis=1) < 1e-3
         nrm[bad] = radial[bad]
-        nrm = _unit(nrm - np.sum(nrm * along, 1)[:, None] * along)
+        nrm = unit(nrm - np.sum(nrm * along, 1)[:, None] * along)
         twist = (2 * u[:, 1] - 1) * 0.5
-        nrm = _rot(nrm, along, twist)
-        across = _cross(nrm, along)
+        nrm = rodrigues(nrm, along, twist)
+        across = cross(nrm, along)
         return pos, along * size, across * (size * p["leaf_scale_x"]), nrm
-
-
-# ---------------------------------------------------------------------- meshing
-def _tube_mesh(st: _Stems, n_ring: int):
-    """Closed tubes along every stem: rings at the samples from m0 on, flat caps at both ends.
-
-    Returns vertices, faces, UVs (around, along) and normals (radial on rings, axial at caps).
-    """
-    M1 = st.rad.shape[1]
-    M = M1 - 1
-    si, mi = np.nonzero(np.arange(M1)[None, :] >= st.m0[:, None])
-    R = len(si)
-    P = st.pos[si, mi]
-    prev_d = st.dirs[si, np.maximum(mi - 1, 0)]
-    first = np.r_[True, si[1:] != si[:-1]]
-    last = np.r_[si[1:] != si[:-1], True]
-    T = np.where((first | last)[:, None], st.dirs[si, np.minimum(mi, M - 1)], _unit(prev_d + st.dirs[si, mi]))
-    T = _unit(T)
-    X = st.xax[si, mi]
-    X = _unit(X - np.sum(X * T, 1)[:, None] * T)
-    Y = _cross(T, X)
-    th = 2 * np.pi * np.arange(n_ring) / n_ring
-    out = np.cos(th)[None, :, None] * X[:, None] + np.sin(th)[None, :, None] * Y[:, None]
-    ring = P[:, None] + st.rad[si, mi][:, None, None] * out
-    verts = [ring.reshape(-1, 3)]
-    base = np.arange(R) * n_ring
-    kk, k1 = np.arange(n_ring), (np.arange(n_ring) + 1) % n_ring
-    a = np.nonzero(~last)[0]
-    A, A1 = base[a][:, None] + kk, base[a][:, None] + k1
-    B, B1 = A + n_ring, A1 + n_ring
-    side = np.concatenate([np.stack([A, B1, B], -1).reshape(-1, 3), np.stack([A, A1, B1], -1).reshape(-1, 3)])
-    fi, li = np.nonzero(first)[0], np.nonzero(last)[0]
-    cs = R * n_ring + np.arange(len(fi))
-    ce = R * n_ring + len(fi) + np.arange(len(li))
-    verts += [P[fi], P[li]]
-    F0 = base[fi][:, None]
-    L0 = base[li][:, None]
-    cap_s = np.stack([np.repeat(cs, n_ring), (F0 + k1).ravel(), (F0 + kk).ravel()], -1)
-    cap_e = np.stack([np.repeat(ce, n_ring), (L0 + kk).ravel(), (L0 + k1).ravel()], -1)
-    v = mi / M
-    uv = [np.stack([np.tile(kk / n_ring, R), np.repeat(v, n_ring)], -1),
-          np.stack([np.full(len(fi), 0.5), v[fi]], -1), np.stack([np.full(len(li), 0.5), v[li]], -1)]
-    normals = np.concatenate([out.reshape(-1, 3), -T[fi], T[li]])
-    return np.concatenate(verts), np.concatenate([side, cap_s, cap_e]), np.concatenate(uv), normals
-
-
-def _leaf_mesh(base, along, across, nrm, shape: int):
-    """Closed thin lenses: the outline plus an apex above and below its centre.
-
-    Normals: the apexes face up and down, rim vertices outwards in the leaf plane (the limit of
-    the lens's area-weighted normals as it gets thin).
-    """
-    rim = _LEAF_RIMS[shape]
-    nr = len(rim)
-    L = len(base)
-    pts = base[:, None] + rim[None, :, 0:1] * along[:, None] + rim[None, :, 1:2] * across[:, None]
-    centre = pts.mean(1)
-    h = LEAF_THICKNESS * np.minimum(np.linalg.norm(along, axis=1), np.linalg.norm(across, axis=1))[:, None] * nrm
-    verts = np.concatenate([pts, (centre + h)[:, None], (centre - h)[:, None]], 1).reshape(-1, 3)
-    o = (np.arange(L) * (nr + 2))[:, None]
-    i, i1 = np.arange(nr), (np.arange(nr) + 1) % nr
-    front = np.stack([np.broadcast_to(o + nr, (L, nr)), o + i, o + i1], -1)
-    back = np.stack([np.broadcast_to(o + nr + 1, (L, nr)), o + i1, o + i], -1)
-    faces = np.concatenate([front, back], 1).reshape(-1, 3)
-    uv1 = np.concatenate([np.stack([rim[:, 0], rim[:, 1] + 0.5], -1), [[rim[:, 0].mean(), 0.5]] * 2])
-    n = _unit(np.concatenate([_unit(pts - centre[:, None]), nrm[:, None], -nrm[:, None]], 1)).reshape(-1, 3)
-    return verts, faces, np.tile(uv1, (L, 1)), n
-
-
-def _graph(stems: list[_Stems]):
-    """Joints of every stem (clones share their split joint) and the edges between them."""
-    pos, rad, lev, edges = [], [], [], []
-    n_nodes = 0
-    prev_nodes = None
-    for level, st in enumerate(stems):
-        S, k = st.res, st.sub
-        nodes = np.full((len(st), S + 1), -1)
-        own = np.arange(S + 1)[None, :] >= (st.j0 + (st.clone_of >= 0))[:, None]
-        si, ji = np.nonzero(own)
-        nodes[si, ji] = n_nodes + np.arange(len(si))
-        n_nodes += len(si)
-        pos.append(st.pos[si, ji * k])
-        rad.append(st.rad[si, ji * k])
-        lev.append(np.full(len(si), level))
-        for i in np.nonzero(st.clone_of >= 0)[0]:  # clones were created after their source
-            nodes[i, st.j0[i]] = nodes[st.clone_of[i], st.j0[i]]
-        if level > 0:
-            orig = st.clone_of < 0
-            pj = np.minimum((st.tpar * stems[level - 1].res).astype(int), stems[level - 1].res)
-            src = prev_nodes[st.parent, pj]
-            # a joint below the parent's own start (a clone's) maps to the joint it split from
-            bad = src < 0
-            src[bad] = prev_nodes[st.parent[bad], np.argmax(prev_nodes[st.parent[bad]] >= 0, axis=1)]
-            edges.append(np.stack([src[orig], nodes[orig, 0]], -1))
-        a, b = nodes[:, :-1], nodes[:, 1:]
-        ok = (a >= 0) & (b >= 0)
-        edges.append(np.stack([a[ok], b[ok]], -1))
-        prev_nodes = nodes
-    return (np.concatenate(pos), np.concatenate(rad), np.concatenate(edges).astype(np.int64),
-            np.concatenate(lev))
 
 
 _SAMPLE_RANGES = {
@@ -776,7 +561,7 @@ class Trees(Generator):
         verts, faces, uvs, labels, normals = [], [], [], [], []
         n_v = 0
         for level, st in enumerate(stems):
-            v, f, uv, n = _tube_mesh(st, tree.rings[level])
+            v, f, uv, n = tube_mesh(st, tree.rings[level])
             verts.append(v)
             faces.append(f + n_v)
             uvs.append(uv)
@@ -788,7 +573,7 @@ class Trees(Generator):
         leaf = tree.leaves(stems[-1], p["leaf_scale"] * (hi - lo))
         n_leaves = 0
         if leaf is not None:
-            v, f, uv, n = _leaf_mesh(*leaf, int(p["leaf_shape"]))
+            v, f, uv, n = leaf_mesh(*leaf, int(p["leaf_shape"]))
             verts.append(v)
             faces.append(f + n_v)
             uvs.append(uv)
@@ -802,7 +587,7 @@ class Trees(Generator):
         shift = np.array([0.0, -lo, 0.0])
         v = (v + shift) * scale
         mesh = Mesh(v, f, np.concatenate(normals), np.concatenate(uvs), np.concatenate(labels), self.part_names)
-        gp, gr, ge, gl = _graph(stems)
+        gp, gr, ge, gl = graph_arrays(stems)
         graph = BranchGraph((gp + shift) * scale, gr * scale, ge, gl, n_leaves)
         return mesh, graph
 
