@@ -9,7 +9,7 @@ Each fit runs in this process with JAX's persistent compilation cache as configu
 default: run a seed once first to time warm fits, as the workflow's next seed is). Later fits in
 one process reuse its traced programs; to time what a workflow job pays (a new process loading
 the stored programs, ``ipm.render.programs``), run it once per fit. Writes each
-fit's folder (``ipm.methods.diff.write_result``: trace.csv, params.json) under ``--out`` and one
+fit's folder (``ipm.methods.diff.write_fit``: trace.csv, params.json) under ``--out`` and one
 JSON line per fit to ``--out``/fits.jsonl; prints the same lines. A trace row's time is its
 evaluation's; a row more than ``--event-ms`` after the one before counts as an event.
 """
@@ -57,7 +57,7 @@ def main() -> None:
     import jax
 
     from ipm.io import load_views
-    from ipm.methods.diff import fit, write_result
+    from ipm.methods.diff import fit, write_fit
     from ipm.synth import synthesize
 
     out = Path(args.out)
@@ -74,7 +74,7 @@ def main() -> None:
                     problem, z, trace, prof = fit(views, generator, args.profile, seed, False, renderer="jax",
                                                   memetic_batch=batch == "on")
                     seconds = time.perf_counter() - t0
-                    write_result(out / f"{case}_s{seed}_batch_{batch}", problem, z, trace, prof, {}, seconds)
+                    write_fit(out / f"{case}_s{seed}_batch_{batch}", problem, z, trace, prof, {}, seconds)
                     row = {"case": case, "seed": seed, "memetic_batch": batch, "device": device,
                            "seconds": round(seconds, 2), "evaluations": len(trace),
                            "final_loss": float(trace["best"].iloc[-1]), **split_time(trace, args.event_ms / 1000)}

@@ -29,7 +29,7 @@ def compute(case: Path, widths: list[int], profile: str) -> dict:
 
     from ipm.generators import get_generator
     from ipm.io import load_views
-    from ipm.methods.diff import Objective
+    from ipm.search.objective import Objective
     from ipm.problem import Problem, estimate_anchor
     from ipm.profiles import get_profile
 
@@ -40,7 +40,7 @@ def compute(case: Path, widths: list[int], profile: str) -> dict:
     lod = max(1, gen.min_fit_lod)
     out = {"z": z}
     for renderer in RENDERERS:
-        prof = get_profile(profile, renderer=renderer)
+        prof = get_profile(profile, renderer=renderer).objective
         for width in widths:
             objective = Objective(problem, views, width, lod, prof)
             loss, grad = objective(z, seed=0)

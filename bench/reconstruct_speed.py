@@ -82,7 +82,7 @@ def main() -> None:
     from ipm.generators import get_generator
     from ipm.io import load_mesh, load_views
     from ipm.methods import METHODS
-    from ipm.methods.diff import Objective
+    from ipm.search.objective import Objective
     from ipm.problem import Problem, estimate_anchor
     from ipm.profiles import get_profile
     from ipm.synth import synthesize
@@ -105,7 +105,7 @@ def main() -> None:
         problem = Problem(gen, *estimate_anchor(views))
         z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.5)
         for renderer in args.renderers:
-            prof = get_profile(args.profile, renderer=renderer)
+            prof = get_profile(args.profile, renderer=renderer).objective
             for res in args.resolutions:
                 objective = Objective(problem, views, res, lod, prof)
                 ms = _timed(lambda: objective(z), args.iterations)

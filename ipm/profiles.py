@@ -15,17 +15,28 @@ from ipm.search.loop import LoopSettings
 from ipm.search.moves import settings_classes
 from ipm.search.objective import ObjectiveSettings
 
-OWNERS = (LoopSettings, MemeticSettings, ObjectiveSettings, *settings_classes())
-"""The settings classes a profile holds one of each."""
 
-OWNER_OF = {name: cls for cls in OWNERS for name in cls.names()}
-if len(OWNER_OF) != sum(len(cls.names()) for cls in OWNERS):
-    raise RuntimeError("two settings classes of the differentiable path share a setting's name")
+
+def owners() -> tuple[type, ...]:
+    """The settings classes a profile holds one of each: the loop's, the memetic stage's, the loss's
+    and those of the moves registered now."""
+    return (LoopSettings, MemeticSettings, ObjectiveSettings, *settings_classes())
+
+
+def owner_of() -> dict[str, type]:
+    """Each setting's name -> the class that owns it; two owners of one name are an error."""
+    found: dict[str, type] = {}
+    for cls in owners():
+        for name in cls.names():
+            if name in found:
+                raise RuntimeError(f"setting {name!r} belongs to both {found[name].__name__} and {cls.__name__}")
+            found[name] = cls
+    return found
 
 
 @dataclass(frozen=True)
 class DiffProfile:
-    """One instance of each settings class of :data:`OWNERS`."""
+    """One instance of each settings class of :func:`owners`."""
 
     parts: tuple
 
@@ -54,10 +65,11 @@ class DiffProfile:
 
     def updated(self, **overrides) -> DiffProfile:
         """A copy with ``overrides`` (flat names); ``UserError`` for unknown names or bad values."""
-        unknown = sorted(set(overrides) - set(OWNER_OF))
+        owner = owner_of()
+        unknown = sorted(set(overrides) - set(owner))
         if unknown:
-            raise UserError(f"unknown diff setting(s) {', '.join(unknown)} (known: {', '.join(sorted(OWNER_OF))})")
-        return DiffProfile(tuple(part.updated(**{k: v for k, v in overrides.items() if OWNER_OF[k] is type(part)})
+            raise UserError(f"unknown diff setting(s) {', '.join(unknown)} (known: {', '.join(sorted(owner))})")
+        return DiffProfile(tuple(part.updated(**{k: v for k, v in overrides.items() if owner[k] is type(part)})
                                  for part in self.parts))
 
 
@@ -82,4 +94,4 @@ def get_profile(name: str, **overrides) -> DiffProfile:
     """The named profile with ``overrides`` applied; ``UserError`` for unknown names or bad values."""
     if name not in PROFILES:
         raise UserError(f"unknown profile {name!r} (known: {', '.join(PROFILES)})")
-    return DiffProfile(tuple(cls() for cls in OWNERS)).updated(**{**PROFILES[name], **overrides})
+    return DiffProfile(tuple(cls() for cls in owners())).updated(**{**PROFILES[name], **overrides})

@@ -13,7 +13,7 @@ from baselines.diffsdf.render import closest_approach, image_stack, pyramid, sil
 from ipm.errors import UserError
 from ipm.io import load_mesh
 from ipm.io.views import Views, resize_masks
-from ipm.methods import METHODS
+from ipm.methods import METHODS, resolve
 from ipm.render.cameras import orbit_camera
 
 LO, HI = np.array([-0.6, -0.5, -0.6]), np.array([0.6, 0.8, 0.6])
@@ -152,7 +152,7 @@ def tiny3(tmp_path_factory, mitsuba_cpu):
 def test_smoke_run_writes_a_watertight_mesh_near_the_object(tmp_path, tiny3):
     from ipm.metrics import silhouette_iou
 
-    assert METHODS["diffsdf"] is run_diffsdf and "diffSDF" in run_diffsdf.label
+    assert resolve(METHODS["diffsdf"].entry) is run_diffsdf and "diffSDF" in METHODS["diffsdf"].label
     info = run_diffsdf(tiny3 / "transforms.json", tmp_path / "a", profile="smoke", seed=1, progress=False)
     assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["info.json", "mesh.ply", "timing.json"]
     assert json.loads((tmp_path / "a" / "info.json").read_text())["views"] == 3 == info["views"]

@@ -32,9 +32,6 @@ def test_merge_keeps_best_per_bin():
     # an object that looks the same turned has one bin per topology: its turned twins merge
     free = merge_bins(pop, n_shape=1, bins=16, yaw_free=lambda z: True)
     assert [i.best_loss for i in free] == [0.5, 1.0]
-    # a niche (an unknown camera's pitch bin) keeps individuals of one topology and yaw bin apart
-    niches = merge_bins(pop, n_shape=1, bins=16, yaw_free=lambda z: True, niche=lambda z: int(z[1] > 0.15))
-    assert [i.best_loss for i in niches] == [0.5, 1.0, 3.0]
 
 
 def test_rejected_steps_halve_the_rate_and_keep_the_best():
@@ -62,7 +59,7 @@ def test_memetic_finds_the_minimum_of_a_mixed_problem(rng):
         return float(offset[k] + d @ d), np.concatenate([[0.0], 2 * d, [0.0]])
 
     clip = lambda z: np.concatenate([np.clip(z[:3], 0, 1), [np.mod(z[3], 2 * np.pi)]])  # noqa: E731
-    prof = get_profile("default", population=8, ga_iterations=6, adam_per_iteration=80)
+    prof = get_profile("default", population=8, ga_iterations=6, adam_per_iteration=80).memetic
     init = [Individual(clip(np.concatenate([[k], rng.random(2), [rng.random() * 6]])), (k,), "r", lr=0.05)
             for k in (0, 0, 0, 0, 1, 0, 0, 0)]
     final = memetic(init, evaluate, clip, key_of, 3, np.array([2, 0, 0]), prof, rng)
@@ -101,7 +98,7 @@ def test_batched_rounds_repeat_the_one_at_a_time_run():
             out = [loss_at(z, int(k)) for z, k in zip(zs, s)]
             return np.array([o[0] for o in out]), np.stack([o[1] for o in out])
 
-        prof = get_profile("default", population=6, ga_iterations=4, adam_per_iteration=30)
+        prof = get_profile("default", population=6, ga_iterations=4, adam_per_iteration=30).memetic
         init = [Individual(clip(np.concatenate([[k % 2], rng.random(2), [rng.random() * 6]])), (k % 2,), "r",
                            lr=0.05) for k in range(6)]
         final = memetic(init, evaluate, clip, key_of, 3, np.array([2, 0, 0]), prof, rng,
@@ -119,8 +116,10 @@ def test_batched_rounds_repeat_the_one_at_a_time_run():
 
 
 def test_profiles():
-    assert PROFILES["paper"].ga_iterations == 20 and PROFILES["paper"].adam_per_iteration == 160
-    assert PROFILES["paper"].population == 16 and PROFILES["paper"].refine_res == (256, 512)
+    paper = get_profile("paper")
+    assert paper.memetic.ga_iterations == 20 and paper.memetic.adam_per_iteration == 160
+    assert paper.memetic.population == 16 and paper.loop.refine_res == (256, 512)
+    assert set(PROFILES) == {"paper", "default", "smoke"}
     with pytest.raises(UserError, match="unknown profile"):
         get_profile("fast")
     with pytest.raises(UserError, match="unknown renderer 'opengl'"):

@@ -274,7 +274,8 @@ def test_a_field_of_view_grid_keeps_the_fit_of_lowest_loss(tmp_path, tiny_case, 
 
 
 @pytest.mark.parametrize("values, match", [
-    (["nan"], "fov_grid: needs fields of view of 1 to 170"), (["0.5", "40"], "fov_grid: needs"),
+    (["nan"], "diff setting fov_grid must be a finite number, got nan"),
+    (["0.5", "40"], "diff setting fov_grid must be >= 1 and <= 170, got 0.5"),
     (None, "--fov-grid applies to the diff path only")])
 def test_fov_grid_problems_are_one_line(tmp_path, tiny_case, capsys, values, match):
     from ipm.cli import main
@@ -348,7 +349,9 @@ def test_the_focal_sweep_finds_the_lowest_loss_over_the_field_of_view():
     from dataclasses import replace
 
     from ipm.generators import get_generator
-    from ipm.methods.diff import sweep_focal
+    from ipm.search.moves import MOVES
+    from ipm.search.moves.camera import CameraSettings, sweep_focal
+    from ipm.search.trial import Trial
     from ipm.problem import POSE_NAMES, Problem
     from ipm.profiles import get_profile
 
@@ -367,22 +370,22 @@ def test_the_focal_sweep_finds_the_lowest_loss_over_the_field_of_view():
         grad[i], grad[j] = 2 * (x[i] - target), 2 * (x[j] - pitch)
         return float((x[i] - target) ** 2 + (x[j] - pitch) ** 2), grad
 
-    profile = replace(get_profile("smoke"), focal_sweep=3, focal_step=0.1, focal_steps=40)
-    out = sweep_focal(problem, z, profile, objective)
+    profile = get_profile("smoke", focal_sweep=3, focal_step=0.1, focal_steps=40)
+    out = sweep_focal(Trial(problem, objective, objective, lr=0.05, reject_ratio=1.2), z, profile.of(CameraSettings))
     assert out[i] == pytest.approx(z[i] + 0.2) and abs(out[j] - 0.87) < 0.5 * abs(z[j] - 0.87)
     grid = z[i] + 0.1 * np.arange(-3, 4)
     assert all(np.min(np.abs(grid - h)) < 1e-9 for h in held)  # the focal gene stayed on its grid points
     known = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=replace(cam, fov_known=True))
-    assert sweep_focal(known, z, profile, objective) is z
+    assert MOVES["focal"].applies(problem, profile) and not MOVES["focal"].applies(known, profile)
 
 
 def test_the_pitch_sweep_walks_the_pitch_after_the_focal_length():
     """With ``pitch_sweep`` the pitch is held on its own grid after the focal walk, and the lowest
     loss wins even where the gradient cannot move the pitch (a valley Adam does not cross)."""
-    from dataclasses import replace
-
     from ipm.generators import get_generator
-    from ipm.methods.diff import sweep_focal
+    from ipm.search.moves import MOVES
+    from ipm.search.moves.camera import CameraSettings, sweep_focal
+    from ipm.search.trial import Trial
     from ipm.problem import POSE_NAMES, Problem
     from ipm.profiles import get_profile
 
@@ -397,33 +400,11 @@ def test_the_pitch_sweep_walks_the_pitch_after_the_focal_length():
         pitches.append(x[j])
         return float((x[j] - target) ** 2 + (x[i] - z[i]) ** 2), np.zeros_like(x)
 
-    profile = replace(get_profile("smoke"), focal_sweep=1, focal_steps=5, pitch_sweep=2, pitch_step=0.25)
-    out = sweep_focal(problem, z, profile, objective)
+    settings = CameraSettings(focal_sweep=1, focal_steps=5, pitch_sweep=2, pitch_step=0.25)
+    out = sweep_focal(Trial(problem, objective, objective, lr=0.05, reject_ratio=1.2), z, settings)
     assert out[i] == pytest.approx(z[i]) and out[j] == pytest.approx(target)
     grid = z[j] + np.radians(0.25) * np.arange(-2, 3)
     assert all(np.min(np.abs(grid - p)) < 1e-9 for p in pitches)
-
-
-def test_pitch_niches_bin_an_unknown_cameras_pitch():
-    """``pitch_bins`` equal bins over the pitch prior (ends open) for an unknown camera; one niche
-    for a known camera or one bin."""
-    from ipm.generators import get_generator
-    from ipm.methods.diff import pitch_niche
-    from ipm.photo import PITCH_PRIOR
-    from ipm.problem import POSE_NAMES, Problem
-
-    gen = get_generator("dishes")
-    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(32.0, 60.0, 64, 64))
-    problem = Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0, camera=cam)
-    z = problem.initial_z(gen.spec.to_unit(next(iter(gen.presets.values()))), 0.3)
-    j, (lo, hi) = problem.n_shape + len(POSE_NAMES), PITCH_PRIOR
-    niche = pitch_niche(problem, 4)
-    for pitch, expected in ((lo - 0.2, 0), (lo + 0.1 * (hi - lo), 0), (lo + 0.3 * (hi - lo), 1),
-                            (lo + 0.6 * (hi - lo), 2), (lo + 0.9 * (hi - lo), 3), (hi + 0.2, 3)):
-        z[j] = pitch
-        assert niche(z) == expected
-    assert pitch_niche(problem, 1)(z) == 0
-    assert pitch_niche(Problem(gen, np.array([0.0, 0.0, -3.0]), 1.0), 4)(z) == 0
 
 
 def test_auto_renders_an_unknown_field_of_view_with_mitsuba(tiny_case):
@@ -431,7 +412,7 @@ def test_auto_renders_an_unknown_field_of_view_with_mitsuba(tiny_case):
     focal sweep was tuned with it; the JAX renderer is not validated there yet), and a known
     camera or field of view on the JAX renderer."""
     from ipm.generators import get_generator
-    from ipm.methods.diff import Objective
+    from ipm.search.objective import Objective
     from ipm.problem import Problem
     from ipm.profiles import get_profile
     from ipm.render.edges import EdgeRenderer
@@ -440,10 +421,10 @@ def test_auto_renders_an_unknown_field_of_view_with_mitsuba(tiny_case):
     frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
     photo = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"], fov_deg=40.0)
     known = load_views(tiny_case / "transforms.json").first(1)
-    gen, prof = get_generator("dishes"), get_profile("smoke", renderer="auto")
+    gen, prof = get_generator("dishes"), get_profile("smoke", renderer="auto").objective
     assert isinstance(Objective(Problem.for_views(gen, photo), photo, 32, 0, prof).renderer, EdgeRenderer)
     bare = photo_views(tiny_case / frame["file_path"], tiny_case / frame["mask_path"])
     assert isinstance(Objective(Problem.for_views(gen, bare), bare, 32, 0, prof).renderer, SilhouetteRenderer)
     assert isinstance(Objective(Problem.for_views(gen, known), known, 32, 0, prof).renderer, EdgeRenderer)
-    jax_photo = Objective(Problem.for_views(gen, bare), bare, 32, 0, get_profile("smoke", renderer="jax"))
+    jax_photo = Objective(Problem.for_views(gen, bare), bare, 32, 0, get_profile("smoke", renderer="jax").objective)
     assert isinstance(jax_photo.renderer, EdgeRenderer)

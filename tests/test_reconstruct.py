@@ -122,7 +122,9 @@ def test_reconstruction_is_deterministic(tmp_path, tiny_case, renderer):
 def test_simplify_drops_a_hidden_handle_and_keeps_a_visible_one(mitsuba_cpu):
     """Occam step: a handle behind the body (camera on -x) is dropped; seen from the side it stays."""
     from ipm.io.views import Views
-    from ipm.methods.diff import Objective, simplify
+    from ipm.search.moves.simplify import simplify
+    from ipm.search.objective import Objective
+    from ipm.search.trial import Trial
     from ipm.profiles import get_profile
     from ipm.render.cameras import orbit_camera
     from ipm.render.silhouette import SilhouetteRenderer
@@ -137,8 +139,8 @@ def test_simplify_drops_a_hidden_handle_and_keeps_a_visible_one(mitsuba_cpu):
         truth = problem.world_mesh(no_handle if not kept else z, 0)
         masks = SilhouetteRenderer(cam, 0.7, 64, 64, spp=16).render(truth.vertices, truth.faces) > 0.5
         views = Views(0.7, 64, 64, cam, masks.astype(np.float32))
-        objective = Objective(problem, views, 64, 0, get_profile("smoke"))
-        out = simplify(problem, objective, z.copy(), tolerance=0.03)
+        objective = Objective(problem, views, 64, 0, get_profile("smoke").objective)
+        out = simplify(Trial(problem, objective, objective, lr=0.05, reject_ratio=1.2), z.copy(), tolerance=0.03)
         assert (problem.key(out) == (1,)) == kept
 
 
@@ -159,11 +161,11 @@ def _one_view(preset: str, width: int):
 
 
 def test_match_area_recovers_the_scale(mitsuba_cpu):
-    from ipm.methods.diff import Objective
+    from ipm.search.objective import Objective
     from ipm.profiles import get_profile
 
     gen, problem, z, views = _one_view("tea_cup", 64)
-    objective = Objective(problem, views, 64, 0, get_profile("smoke"))
+    objective = Objective(problem, views, 64, 0, get_profile("smoke").objective)
     wrong = z.copy()
     wrong[-1] += np.log(1.6)
     fixed = objective.match_area(wrong)
@@ -175,11 +177,11 @@ def test_batched_objective_matches_single_calls(mitsuba_cpu):
     """``Objective.many``: points of two topologies (with and without a handle), padded to a batch
     of 4, give the losses and gradients of one-at-a-time calls with the same seeds; ``batch`` is on
     only where asked, and only for the JAX renderer's silhouettes."""
-    from ipm.methods.diff import Objective
+    from ipm.search.objective import Objective
     from ipm.profiles import get_profile
 
     gen, problem, z, views = _one_view("mug", 48)
-    objective = Objective(problem, views, 48, 0, get_profile("smoke", renderer="jax"))
+    objective = Objective(problem, views, 48, 0, get_profile("smoke", renderer="jax").objective)
     no_handle = z.copy()
     no_handle[gen.spec.index["has_handle"]] = 0.0
     zs = [problem.clip(z + 0.03), no_handle, problem.clip(z - 0.02)]
@@ -191,14 +193,14 @@ def test_batched_objective_matches_single_calls(mitsuba_cpu):
     assert losses[0] != losses[2] and objective.calls == 3
     np.testing.assert_array_equal(objective.seeds(2), [3, 4])
     assert objective.batch(True) is not None and objective.batch(False) is None
-    mitsuba = Objective(problem, views, 48, 0, get_profile("smoke", renderer="mitsuba"))
+    mitsuba = Objective(problem, views, 48, 0, get_profile("smoke", renderer="mitsuba").objective)
     assert mitsuba.batch(True) is None
 
 
 def test_finalists_are_distinct_basins():
     """``refine_candidates``: the best individuals that differ from every one taken before in
     their topology or by more than a quarter turn; near twins are passed over."""
-    from ipm.methods.diff import finalists
+    from ipm.search.loop import finalists
     from ipm.optim.memetic import Individual
 
     gen = get_generator("dishes")
@@ -223,7 +225,7 @@ def test_input_iou_is_nan_without_open3d(tiny_case, monkeypatch):
     not installed (the GPU machine) the column is NaN and the fit still runs."""
     import importlib.util
 
-    from ipm.methods.diff import input_iou
+    from ipm.search.loop import input_iou
 
     views = load_views(tiny_case / "transforms.json").subset([0])
     gen = get_generator("dishes")

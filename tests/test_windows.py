@@ -20,8 +20,14 @@ from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
 from ipm.facades import count_rows_and_windows, marker_turn, runs
-from ipm.methods.diff import (Objective, class_masks, decide, neighbours, polish, read_counts_into, sight_axis,
-                              sweep_place, sweep_sight, turned)
+from ipm.search.moves import MOVES
+from ipm.search.moves.counts import read_counts_into, turned
+from ipm.search.moves.place import PlaceSettings, sweep_place
+from ipm.search.moves.polish import PolishSettings, neighbours, polish
+from ipm.search.moves.roof import RoofSettings, decide
+from ipm.search.moves.sight import SightSettings, sight_axis, sweep_sight
+from ipm.search.objective import Objective, class_masks
+from ipm.search.trial import Trial
 from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -30,6 +36,16 @@ from ipm.render.edges import pyramid_loss
 from ipm.render.silhouette import SilhouetteRenderer, _pyramid_loss
 from tests.conftest import synthesized
 from tests.test_generate import VALIDATOR, _glb_json
+
+
+def roof_settings(**overrides):
+    """The default profile's roof-race settings with ``overrides``."""
+    return get_profile("default", **overrides).of(RoofSettings)
+
+
+def trial(problem, steps, score=None, views=None, record=lambda name, loss: None):
+    """A move's trial helper stepping under ``steps`` and scoring under ``score`` (default: ``steps``)."""
+    return Trial(problem, steps, score or steps, lr=0.05, reject_ratio=1.2, views=views, record=record)
 
 
 @pytest.fixture(scope="module")
@@ -122,20 +138,14 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
     plain = load_views(building_views / "transforms.json", semantics=False)
     problem = Problem(gen, *estimate_anchor(views))
     z = problem.initial_z(gen.spec.to_unit(gen.presets["villa"]), 0.5)
-    with_windows = Objective(problem, views, 48, 2, get_profile("smoke"))
-    fallback = Objective(problem, plain, 48, 2, get_profile("smoke"))
-    off = Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0))
-    roofs = Objective(problem, views, 48, 2, get_profile("smoke", extra_class_weight=1.0))
-    roofs_alone = Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0, extra_class_weight=1.0))
+    with_windows = Objective(problem, views, 48, 2, get_profile("smoke").objective)
+    fallback = Objective(problem, plain, 48, 2, get_profile("smoke").objective)
+    off = Objective(problem, views, 48, 2, get_profile("smoke", window_weight=0.0).objective)
     assert with_windows.class_targets is not None and fallback.class_targets is None and off.class_targets is None
     assert with_windows.class_labels == (BUILDING_LABELS["window"],) and with_windows.class_targets.shape[:2] == (1, 1)
-    assert roofs.class_labels == (BUILDING_LABELS["window"], BUILDING_LABELS["roof"])
-    assert roofs.class_targets.shape[:2] == (1, 2) and roofs_alone.class_labels == (BUILDING_LABELS["roof"],)
-    assert Objective(problem, plain, 48, 2, get_profile("smoke", extra_class_weight=1.0)).class_targets is None
-    loss_w, loss_f, loss_off, loss_r = (o(z, seed=5)[0] for o in (with_windows, fallback, off, roofs))
+    loss_w, loss_f, loss_off = (o(z, seed=5)[0] for o in (with_windows, fallback, off))
     assert loss_f == pytest.approx(loss_off, rel=1e-6)
     assert loss_w > loss_f  # the villa's windows are not building_1's
-    assert loss_r > loss_w  # nor its hip roof building_1's gable
     with pytest.raises(UserError, match="unknown diff setting"):
         get_profile("smoke", window_wieght=1.0)
     with pytest.raises(UserError, match="unknown window_loss 'l1'"):
@@ -146,7 +156,7 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
 def test_renderer_choice_with_window_masks(building_views):
     """``auto`` takes the JAX renderer with window masks too (a z-buffer and edge sampling,
     ``ipm.render.edges``), whose loss equals Mitsuba's within render noise, with and without the
-    window term and with the roof's; ``mitsuba`` stays selectable."""
+    window term; ``mitsuba`` stays selectable."""
     from ipm.render.edges import EdgeRenderer
     from ipm.render.silhouette import SilhouetteRenderer
 
@@ -154,10 +164,10 @@ def test_renderer_choice_with_window_masks(building_views):
     views = load_views(building_views / "transforms.json")
     problem = Problem(gen, *estimate_anchor(views))
     z = problem.initial_z(gen.spec.to_unit(gen.presets["villa"]), 0.5)
-    for window_weight, roof_weight in ((1.0, 0.0), (0.0, 0.0), (1.0, 1.0)):
-        weights = dict(window_weight=window_weight, extra_class_weight=roof_weight)
-        assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", **weights)).renderer, EdgeRenderer)
-        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, spp=16, **weights))
+    for window_weight in (1.0, 0.0):
+        weights = dict(window_weight=window_weight)
+        assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", **weights).objective).renderer, EdgeRenderer)
+        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, spp=16, **weights).objective)
                 for r in ("jax", "mitsuba")]
         assert isinstance(pair[0].renderer, EdgeRenderer) and isinstance(pair[1].renderer, SilhouetteRenderer)
         losses = [np.mean([o(z, seed=s)[0] for s in range(4)]) for o in pair]
@@ -165,19 +175,17 @@ def test_renderer_choice_with_window_masks(building_views):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("renderer,roof_weight", [("mitsuba", 0.0), ("jax", 0.0), ("mitsuba", 1.0), ("jax", 1.0)])
-def test_one_scene_serves_every_topology(building_views, renderer, roof_weight):
+@pytest.mark.parametrize("renderer", ["mitsuba", "jax"])
+def test_one_scene_serves_every_topology(building_views, renderer):
     """Buildings render every face of the level with the absent solids collapsed to a point: the
-    loss and gradient equal those of the topology's own faces (split by class: the windows, and
-    with a roof term the roof), and one Mitsuba scene (one set of compiled kernels) serves the
+    loss and gradient equal those of the topology's own faces (split by class: the windows), and one Mitsuba scene (one set of compiled kernels) serves the
     house, the villa and the tower."""
     from ipm.render.edges import EdgeRenderer
 
     gen = get_generator("buildings")
     views = load_views(building_views / "transforms.json")
     problem = Problem(gen, *estimate_anchor(views))
-    obj = Objective(problem, views, 48, 2, get_profile("smoke", spp=8, renderer=renderer,
-                                                   extra_class_weight=roof_weight))
+    obj = Objective(problem, views, 48, 2, get_profile("smoke", spp=8, renderer=renderer).objective)
     zs = [problem.initial_z(gen.spec.to_unit(gen.presets[name]), 0.5) for name in ("house", "villa", "tower")]
     assert len({problem.key(z) for z in zs}) == 3
     for z in zs:
@@ -187,7 +195,7 @@ def test_one_scene_serves_every_topology(building_views, renderer, roof_weight):
     key = problem.key(zs[-1])
     topo = gen.topology(key, 2)
     label = np.asarray(gen.part_semantic)[topo.labels]
-    classes = ["window"] + ["roof"] * (roof_weight > 0)
+    classes = ["window"]
     assert obj.class_labels == tuple(BUILDING_LABELS[c] for c in classes)
     inside = [label == BUILDING_LABELS[c] for c in classes]
     own = (SilhouetteRenderer if renderer == "mitsuba" else EdgeRenderer)(views.c2w, views.fov_x, 48,
@@ -273,12 +281,12 @@ def test_polish_steps_window_counts_and_turns(variant):
         turn = 1.0 - np.cos(v[problem.n_shape] - target_yaw)
         return (count - 3.0) ** 2 + turn, np.zeros_like(v)
 
-    best = polish(problem, objective, z, get_profile("default", polish_sweeps=3, polish_steps=1))
+    best = polish(trial(problem, objective), z, PolishSettings(polish_sweeps=3, polish_steps=1))
     assert round(best[i] * 8) == 3
     assert np.cos(best[problem.n_shape] - target_yaw) == pytest.approx(1.0)
-    assert round(polish(problem, objective, z, get_profile("default", polish_sweeps=0))[i] * 8) == 6
+    assert round(polish(trial(problem, objective), z, PolishSettings(polish_sweeps=0))[i] * 8) == 6
     # a count the views settle (read off the window mask) is left alone, the rest still moves
-    held = polish(problem, objective, z, get_profile("default", polish_sweeps=3, polish_steps=1),
+    held = polish(trial(problem, objective), z, PolishSettings(polish_sweeps=3, polish_steps=1),
                   settled=frozenset({"windows_front"}))
     assert round(held[i] * 8) == 6 and np.cos(held[problem.n_shape] - target_yaw) == pytest.approx(1.0)
 
@@ -297,38 +305,10 @@ def test_decide_tries_every_kind_of_roof():
     def lowest_at(value):
         return lambda v, seed=None: ((v[i] * 2 - value) ** 2, np.zeros_like(v))
 
-    best = decide(problem, z, get_profile("default", decide_steps=2), lowest_at(1), lowest_at(2))
+    best = decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=2))
     assert round(best[i] * 2) == 2
     np.testing.assert_array_equal(np.delete(best, i), np.delete(z, i))  # no gradient: nothing else moved
-    assert round(decide(problem, z, get_profile("default", decide_steps=0), lowest_at(1), lowest_at(2))[i] * 2) == 0
-
-
-def test_decide_least_starts_what_a_roof_turns_on_at_its_least():
-    """With ``decide_least`` a gable tried from a flat roof starts at the least roof height, and a
-    hip its ratio at the least too (the hip nearest a gable); what the flat roof used, and what
-    every kind uses, keeps its value; without it the unused height a preset left stays."""
-    gen = get_generator("buildings")
-    problem = Problem(gen, np.zeros(3), 1.0)
-    ix, n = gen.spec.index, problem.n_shape
-    x = gen.presets["townhouse"].copy()
-    assert x[ix["roof_type"]] == 0 and x[ix["roof_height"]] > gen.spec.lower[ix["roof_height"]]
-    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
-    starts = {}
-
-    def record(v, seed=None):
-        starts.setdefault(round(v[ix["roof_type"]] * 2), v.copy())
-        return 0.0, np.zeros_like(v)
-
-    for least in (True, False):
-        starts.clear()
-        decide(problem, z, get_profile("default", decide_steps=1, decide_least=least), record,
-               lambda v, seed=None: (0.0, np.zeros_like(v)))
-        gable, hip = (gen.spec.from_unit(starts[k][:n]) for k in (1, 2))
-        height = gen.spec.lower[ix["roof_height"]] if least else x[ix["roof_height"]]
-        assert gable[ix["roof_height"]] == pytest.approx(height) and hip[ix["roof_height"]] == pytest.approx(height)
-        assert hip[ix["hip_ratio"]] == pytest.approx(gen.spec.lower[ix["hip_ratio"]] if least else x[ix["hip_ratio"]])
-        for name in ("width", "floor_height", "roof_overhang"):
-            assert gable[ix[name]] == pytest.approx(x[ix[name]])
+    assert round(decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=0))[i] * 2) == 0
 
 
 def test_decide_race_gives_a_descending_candidate_more_steps():
@@ -355,8 +335,7 @@ def test_decide_race_gives_a_descending_candidate_more_steps():
 
     kinds = []
     for rounds in (1, 3):
-        best = decide(problem, z, get_profile("default", decide_steps=3, decide_rounds=rounds), walk, score,
-                      record=lambda name, loss: None)
+        best = decide(trial(problem, walk, score), z, roof_settings(decide_steps=3, decide_rounds=rounds))
         kinds.append(round(best[i] * 2))
     assert kinds == [1, 2]
 
@@ -378,15 +357,15 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
         return float(np.sum((v - want) ** 2)), np.zeros_like(v)
 
     recounted = []
-    prof = get_profile("default", decide_steps=2, decide_shares=())
-    best = decide(problem, z, prof, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
+    prof = roof_settings(decide_steps=2, decide_shares=())
+    best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof,
                   recount=lambda v: recounted.append(v) or v)
     np.testing.assert_allclose(best, want)
     assert len(recounted) == 3
     back = gen.spec.from_unit(best[:n])
     assert (back[ix["width"]], back[ix["depth"]]) == pytest.approx((0.8, 1.2))
     assert np.angle(np.exp(1j * (best[n] - z[n]))) == pytest.approx(np.pi / 2)
-    plain = decide(problem, z, prof, lambda v, seed=None: (0.0, np.zeros_like(v)), score)
+    plain = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof)
     assert plain[n] == z[n] and round(plain[ix["roof_type"]] * 2) == 1
 
 
@@ -410,9 +389,9 @@ def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
     def score(v, seed=None):
         return float(abs(share(v) - 0.6) + (round(v[ix["roof_type"]] * 2) != 2)), np.zeros_like(v)
 
-    prof = get_profile("default", decide_steps=1, decide_shares=(0.3, 0.6))
-    best = decide(problem, z, prof, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
-                  record=lambda name, loss: names.append(name), recount=lambda v: v)
+    prof = roof_settings(decide_steps=1, decide_shares=(0.3, 0.6))
+    best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
+                        record=lambda name, loss: names.append(name)), z, prof, recount=lambda v: v)
     assert round(best[ix["roof_type"]] * 2) == 2 and share(best) == pytest.approx(0.6)
     first = names[:14]
     assert first[:2] == ["roof_type=0", "roof_type=0 turned"] and len(first) == len(set(first)) == 14
@@ -448,22 +427,21 @@ def test_sight_sweep_stretches_the_side_the_view_looks_along():
 
     still = lambda v, seed=None: (0.0, np.zeros_like(v))  # noqa: E731: the steps move nothing
     profile = get_profile("default", sight_steps=2)
-    best = sweep_sight(problem, front, z, profile, still, score)
+    best = sweep_sight(trial(problem, still, score, views=front), z, profile.of(SightSettings))
     assert gen.spec.from_unit(best[:n])[ix["depth"]] == pytest.approx(depth * 0.7)
     before, after = problem.world_mesh(z, 0).vertices[:, 2], problem.world_mesh(best, 0).vertices[:, 2]
     assert after.max() == pytest.approx(before.max(), abs=1e-5)  # the near (front) face held
     assert after.min() - before.min() == pytest.approx(0.3 * depth * np.exp(z[n + 6]), rel=1e-4)
-    assert sweep_sight(problem, front, z, get_profile("default", sight_steps=0), still, score) is z
+    assert not MOVES["sight"].applies(problem, get_profile("default", sight_steps=0))
 
     def close(v, seed=None):  # the stretch only 1 % lower than the extent as it stands
         return 1.0 - 0.01 * (abs(v[ix["depth"]] - want) < 1e-6), np.zeros_like(v)
 
     for margin, stretched in ((0.0, True), (0.05, False)):
-        kept = sweep_sight(problem, front, z, get_profile("default", sight_steps=2, sight_margin=margin), still, close)
+        kept = sweep_sight(trial(problem, still, close, views=front), z,
+                           SightSettings(sight_steps=2, sight_margin=margin))
         assert bool(abs(kept[ix["depth"]] - want) < 1e-6) == stretched
-    cups = Problem(get_generator("dishes"), np.zeros(3), 1.0)
-    cup = cups.initial_z(np.full(cups.n_shape, 0.5), 0.0)
-    assert sweep_sight(cups, front, cup, profile, still, score) is cup
+    assert MOVES["sight"].applies(problem, profile) and "sight" not in get_generator("dishes").moves
 
 
 def test_place_sweep_puts_the_chimney_where_the_loss_is_lowest():
@@ -488,16 +466,14 @@ def test_place_sweep_puts_the_chimney_where_the_loss_is_lowest():
         return 1.0 - 0.3 * chimney - 0.3 * placed(v), np.zeros_like(v)
 
     still = lambda v, seed=None: (0.0, np.zeros_like(v))  # noqa: E731: the steps move nothing
-    best = sweep_place(problem, z, get_profile("default", place_steps=2), still, score)
+    best = sweep_place(trial(problem, still, score), z, PlaceSettings(place_steps=2))
     assert placed(best) and np.array_equal(best[n:], z[n:])
     others = np.delete(np.arange(n), [ix[k] for k in target])
     assert np.allclose(best[others], z[others])  # only the part's own parameters move
-    kept = sweep_place(problem, z, get_profile("default", place_steps=2, place_margin=0.7), still, score)
+    kept = sweep_place(trial(problem, still, score), z, PlaceSettings(place_steps=2, place_margin=0.7))
     assert np.array_equal(kept, z)
-    assert sweep_place(problem, z, get_profile("default", place_steps=0), still, score) is z
-    cups = Problem(get_generator("dishes"), np.zeros(3), 1.0)
-    cup = cups.initial_z(np.full(cups.n_shape, 0.5), 0.0)
-    assert sweep_place(cups, cup, get_profile("default"), still, score) is cup
+    assert not MOVES["place"].applies(problem, get_profile("default", place_steps=0))
+    assert MOVES["place"].applies(problem, get_profile("default")) and "place" not in get_generator("dishes").moves
 
 
 def test_seen_counts_follow_the_facades_the_camera_faces():

@@ -74,7 +74,7 @@ def fit_fov_grid(views: Views, generator: str, prof: DiffProfile, seed: int,
     return problem, z, pd.concat([trace, rows], ignore_index=True)
 
 
-def _write(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFrame, prof: DiffProfile,
+def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFrame, prof: DiffProfile,
            info: dict, seconds: float, place: np.ndarray | None = None) -> dict:
     """The fit's result folder (``ipm.methods.results``): its mesh at the output level of detail,
     moved first by ``place`` (4 x 4, a similarity) where given, and ``info`` with the decoded ``z``."""
@@ -94,7 +94,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     views = open_views(views_path).first(n_input_views)
     problem, z, trace, prof = fit(views, generator, profile, seed, progress, **overrides)
     info = {"method": "diff", "profile": profile, "seed": seed, **views.input_frame()}
-    return _write(out, problem, z, trace, prof, info, time.perf_counter() - t0)
+    return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0)
 
 
 def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
@@ -117,7 +117,7 @@ def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes"
             "pose": placed_pose(estimate["pose"], place),
             "photo_pose": estimate["pose"], "camera_error": camera_errors(estimate["camera"], given.c2w[0],
                                                                            given.fov_x)}
-    return _write(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
+    return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
 
 
 def run_photo_fov(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",

@@ -21,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ipm.capture import open_views
 from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.generators.base import Generator
-from ipm.io import load_views, shown_path
+from ipm.io import shown_path
 from ipm.io.views import Views
 from ipm.losses.impostors import make_target
 from ipm.losses.tree_objective import Objective, family_objective
@@ -141,7 +142,7 @@ def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "tr
     gen = get_generator(generator)
     settings = get_settings(profile, **(ga_settings or {}))
     opts = get_options(profile, **{k: v for k, v in options.items() if k in GAOptions.names()})
-    views = load_views(views_path).first(n_input_views)
+    views = open_views(views_path).first(n_input_views)
     if views.camera is not None:
         raise UserError("the view's camera is unknown: the diff path estimates it (--method diff)")
     objective = problem_objective(views, gen, opts)

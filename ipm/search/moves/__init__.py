@@ -12,11 +12,16 @@ takes a candidate and a :class:`~ipm.search.trial.Trial`. Phases, in the loop's 
 - ``end``: the one result, after the last stage.
 
 A generator lists the moves it wants by name (``Generator.moves``); a camera of unknown lens adds
-:data:`UNKNOWN_CAMERA_MOVES`. Adding a move: a module here that registers it, and its name in the
-generators' lists.
+:data:`UNKNOWN_CAMERA_MOVES`. Adding a move: a module here that registers it (every module of this
+package is imported with it), and its name in the generators' lists.
 """
-from ipm.search.moves import camera, counts, place, polish, recentre, roof, sight, simplify  # noqa: F401
+import importlib
+import pkgutil
+
 from ipm.search.moves.base import MOVES, PHASES, UNKNOWN_CAMERA_MOVES, Move, moves_for, register, settings_classes
 
-__all__ = ["MOVES", "PHASES", "UNKNOWN_CAMERA_MOVES", "Move", "moves_for", "register", "settings_classes",
-           "camera", "counts", "place", "polish", "recentre", "roof", "sight", "simplify"]
+for _module in pkgutil.iter_modules(__path__):
+    if _module.name != "base":
+        importlib.import_module(f"{__name__}.{_module.name}")
+
+__all__ = ["MOVES", "PHASES", "UNKNOWN_CAMERA_MOVES", "Move", "moves_for", "register", "settings_classes"]
