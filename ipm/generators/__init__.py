@@ -1,9 +1,6 @@
 """Procedural generators, registered by name (``GENERATORS["dishes"]`` is a class)."""
-from ipm.registry import Registry
-
-GENERATORS: Registry = Registry("generator")
-
-from ipm.generators import buildings, dishes, trees  # noqa: E402,F401  (fills the registry)
+from ipm.generators import buildings, dishes, trees  # noqa: F401  (fills the registry)
+from ipm.generators.base import GENERATORS
 
 
 def get_generator(name: str):

@@ -13,6 +13,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ipm.errors import UserError
+from ipm.registry import Registry
+
+GENERATORS: Registry = Registry("generator")
+"""Procedural generators by name (``GENERATORS["dishes"]`` is a class); filled by ``ipm.generators``."""
 
 
 @dataclass(frozen=True)

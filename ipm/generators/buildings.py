@@ -22,8 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ipm.generators import GENERATORS
-from ipm.generators.base import Generator, Topology, make_spec
+from ipm.generators.base import GENERATORS, Generator, Topology, make_spec
 from ipm.io.semantic import BUILDING_LABELS
 
 PARTS = ("walls", "windows", "frames", "roof", "door", "balconies")

@@ -18,8 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ipm.generators import GENERATORS
-from ipm.generators.base import Generator, Topology, make_spec
+from ipm.generators.base import GENERATORS, Generator, Topology, make_spec
 from ipm.generators.geometry import (catmull_rom_at, catmull_rom_matrix, closed_sweep_faces,
                                      revolve, sweep_tube)
 

@@ -52,8 +52,7 @@ from __future__ import annotations
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.generators import GENERATORS
-from ipm.generators.base import Generator, Mesh, make_spec
+from ipm.generators.base import GENERATORS, Generator, Mesh, make_spec
 from ipm.generators.trees_geometry import (BranchGraph, Stems, cross, curve_per_segment, graph_arrays, leaf_mesh,
                                           rodrigues, shape_ratio, tube_mesh, unit)
 from ipm.io.semantic import BRANCH, FOLIAGE, LABEL_NAMES

@@ -9,7 +9,7 @@ import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from PIL import Image
@@ -18,8 +18,12 @@ from ipm.errors import UserError
 from ipm.io.atomic import atomic_path, write_json
 from ipm.io.lens import NERFSTUDIO_COEFFICIENTS, Lens, nerfstudio_lens
 
-if TYPE_CHECKING:
-    from ipm.photo import UnknownCamera
+class EstimatedCamera(Protocol):
+    """What views carry when their camera is to be estimated (``ipm.photo.UnknownCamera``): the
+    render camera's field of view, a start unless ``fov_known``."""
+
+    fov0: float
+    fov_known: bool
 
 
 @dataclass(frozen=True)
@@ -52,7 +56,7 @@ class Views:
     ground_known: bool = True
     """Whether the object stands on y = 0 by the input's word (the convention), not by an estimate
     (``ipm.capture.upright``: the masks' lowest common point lies below a base seen from above)."""
-    camera: UnknownCamera | None = None
+    camera: EstimatedCamera | None = None
     """``ipm.photo.UnknownCamera`` when the (single) view's camera is to be estimated; then ``c2w``
     and ``fov_x`` are the render camera's, a start, not a measurement."""
     lens: Lens | None = None

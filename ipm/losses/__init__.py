@@ -4,12 +4,9 @@
 similarity ``TSim`` of two semantic label images times its regularisation multipliers, a value in
 [0, 1] to minimise (0 = identical).
 """
-from ipm.registry import Registry
-
-LOSSES: Registry = Registry("loss")
-
-from ipm.losses import tree  # noqa: E402,F401  (fills the registry)
-from ipm.losses.tree import (  # noqa: E402
+from ipm.losses import tree  # noqa: F401  (fills the registry)
+from ipm.losses.registry import LOSSES
+from ipm.losses.tree import (
     REGULARISERS, StripeFeatures, TreeStats, loss_terms, regularisation_multipliers, stripe_features,
     tree_loss, tree_similarity,
 )

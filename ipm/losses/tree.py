@@ -56,7 +56,7 @@ import numpy as np
 
 from ipm.errors import UserError
 from ipm.io.semantic import BRANCH, FOLIAGE, check_labels
-from ipm.losses import LOSSES
+from ipm.losses.registry import LOSSES
 
 DENSE_SHARE = 0.75
 """A column of a stripe is dense crown when more than this share of its pixels are foliage."""

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.optim import ALGORITHMS
+from ipm.optim.registry import ALGORITHMS
 from ipm.optim.ga_settings import GASettings
 from ipm.optim.ga_statistics import GeneStatistics, random_genes, snap
 
