@@ -9,8 +9,9 @@ import numpy as np
 import trimesh
 
 from ipm.errors import UserError
-from ipm.io import atomic_dir, load_views, save_ply, write_json
+from ipm.io import load_views
 from ipm.io.views import Views
+from ipm.methods.results import write_result as write_folder
 
 
 def input_views(views_path: str | Path, n_input_views: int | None, minimum: int = 2) -> Views:
@@ -40,17 +41,10 @@ def extract_surface(field: np.ndarray, lo: np.ndarray, hi: np.ndarray, level: fl
 
 def write_result(out: str | Path, vertices: np.ndarray, faces: np.ndarray, t0: float, info: dict,
                  extra_files: dict | None = None) -> dict:
-    """OUT/mesh.ply, OUT/timing.json and OUT/info.json, atomically; returns ``info`` with the time."""
-    if len(faces) == 0 or not np.all(np.isfinite(vertices)):
-        raise FloatingPointError("the baseline produced an empty or non-finite mesh")
+    """OUT/mesh.ply, OUT/timing.json and OUT/info.json (``ipm.methods.results``); returns ``info`` with the time."""
     info = {**info, "seconds": time.perf_counter() - t0}
-    with atomic_dir(out) as tmp:
-        save_ply(tmp / "mesh.ply", vertices, faces)
-        write_json(tmp / "timing.json", {"seconds": info["seconds"]})
-        write_json(tmp / "info.json", info)
-        for name, write in (extra_files or {}).items():
-            write(tmp / name)
-    return info
+    return write_folder(out, (vertices, faces), info, {"seconds": info["seconds"]}, info_file="info.json",
+                        extra_files=extra_files)
 
 
 def write_failure(out: str | Path, t0: float, info: dict, reason: str) -> dict:
@@ -58,8 +52,5 @@ def write_failure(out: str | Path, t0: float, info: dict, reason: str) -> dict:
     OUT/mesh.ply and ``failed`` in OUT/info.json, so the table shows "-" with the reason and
     the pipeline goes on, as the paper's table does."""
     info = {**info, "failed": reason, "seconds": time.perf_counter() - t0}
-    with atomic_dir(out) as tmp:
-        save_ply(tmp / "mesh.ply", np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-        write_json(tmp / "timing.json", {"seconds": info["seconds"], "failed": reason})
-        write_json(tmp / "info.json", info)
-    return info
+    return write_folder(out, (np.zeros((0, 3)), np.zeros((0, 3), np.int64)), info,
+                        {"seconds": info["seconds"], "failed": reason}, info_file="info.json", failed=True)

@@ -13,6 +13,10 @@ Levels of detail (the paper's Figure 6): 0 a box with its roof; 1 outer walls: c
 slabs and chimney added; 2 without small details: window and door openings recessed into the
 walls with glass and door leaves, entrance steps, a flat roof's parapet; 3 full detail: window
 frames and mullions, balcony railings, entrance canopies.
+
+The module is past 450 lines because the parameter table, the solids of every level and the
+facade geometry the search's moves read (facades, the door's extent, count changes, roof splits)
+describe one object and change together.
 """
 from __future__ import annotations
 

@@ -84,7 +84,7 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
                        normals=mesh.normals @ (place[:3, :3] / np.cbrt(np.linalg.det(place[:3, :3]))).T)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
             "settings": prof.as_dict(), **info}
-    return write_result(out, mesh, info, trace, {"seconds": seconds})
+    return write_result(out, mesh, info, {"seconds": seconds}, trace)
 
 
 def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",

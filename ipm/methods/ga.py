@@ -162,6 +162,6 @@ def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "tr
                  "evaluations": int(len(trace)), "loss": "tree" if objective.tree else "silhouette",
                  "statistics": stats_source, "settings": asdict(settings), "options": asdict(opts),
                  "parts": sorted({gen.part_names[k] for k in np.unique(mesh.labels)}), **views.input_frame()})
-    return write_result(out, mesh, info, trace, {
+    return write_result(out, mesh, info, {
         "seconds": seconds, "statistics_seconds": t_stats, "search_seconds": objective.seconds,
-        "seconds_per_evaluation": objective.seconds / max(objective.evaluations, 1)})
+        "seconds_per_evaluation": objective.seconds / max(objective.evaluations, 1)}, trace)

@@ -1,7 +1,13 @@
-"""The one writer of a procedural method's result folder: mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""
+"""The one writer of a method's result folder, ours and the baselines'.
+
+Every folder has mesh.ply (world frame) and timing.json; a procedural method's mesh is part-labelled
+(its labels in mesh.ply, and mesh.glb) and comes with params.json and trace.csv; a baseline's
+geometry alone comes with info.json.
+"""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -13,18 +19,30 @@ GLB_EXTRAS = ("generator", "params", "pose")
 """Keys of params.json that the glTF file carries too (its ``extras``), where present."""
 
 
-def write_result(out: str | Path, mesh: Mesh, info: dict, trace: pd.DataFrame, timing: dict) -> dict:
-    """``mesh`` (world frame, part-labelled), ``info`` as params.json, ``trace`` as trace.csv and
-    ``timing`` (``seconds`` at least; the trace's length is added as ``evaluations``) in ``out``,
-    atomically; ``FloatingPointError`` for a mesh that is empty or not finite. Returns ``info``."""
-    if not np.all(np.isfinite(mesh.vertices)) or len(mesh.faces) == 0:
-        raise FloatingPointError("the reconstruction diverged (an empty or non-finite mesh)")
+def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], info: dict, timing: dict,
+                 trace: pd.DataFrame | None = None, info_file: str = "params.json",
+                 extra_files: dict[str, Callable[[Path], None]] | None = None, failed: bool = False) -> dict:
+    """``mesh`` (a generator's part-labelled :class:`~ipm.generators.base.Mesh`, or a baseline's
+    ``(vertices, faces)``), ``info`` as ``info_file``, ``trace`` as trace.csv, ``timing`` as
+    timing.json (``seconds`` first, then the trace's length as ``evaluations``, then the rest) and
+    each of ``extra_files`` (name -> writer of that path) in ``out``, atomically. A mesh that is
+    empty or not finite is a ``FloatingPointError``, unless the run ``failed`` (an empty mesh
+    recorded with its reason). Returns ``info``."""
+    labelled = isinstance(mesh, Mesh)
+    vertices, faces = (mesh.vertices, mesh.faces) if labelled else mesh
+    if not failed and (len(faces) == 0 or not np.all(np.isfinite(vertices))):
+        raise FloatingPointError("the method produced an empty or non-finite mesh")
+    times = {"seconds": timing["seconds"], **({"evaluations": int(len(trace))} if trace is not None else {}),
+             **{k: v for k, v in timing.items() if k != "seconds"}}
     with atomic_dir(out) as tmp:
-        save_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces, mesh.labels)
-        save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
-                 normals=mesh.normals, extras={k: info[k] for k in GLB_EXTRAS if k in info})
-        write_json(tmp / "params.json", info)
-        trace.to_csv(tmp / "trace.csv", index=False)
-        write_json(tmp / "timing.json", {"seconds": timing["seconds"], "evaluations": int(len(trace)),
-                                         **{k: v for k, v in timing.items() if k != "seconds"}})
+        save_ply(tmp / "mesh.ply", vertices, faces, mesh.labels if labelled else None)
+        if labelled:
+            save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
+                     normals=mesh.normals, extras={k: info[k] for k in GLB_EXTRAS if k in info})
+        write_json(tmp / info_file, info)
+        if trace is not None:
+            trace.to_csv(tmp / "trace.csv", index=False)
+        write_json(tmp / "timing.json", times)
+        for name, write in (extra_files or {}).items():
+            write(tmp / name)
     return info
