@@ -1,6 +1,6 @@
 """Benchmark: whole single-view fits (diff path, JAX renderer) with their wall time split into
 steady evaluations and one-off events (a stage's first call: tracing, compiling or loading its
-program), with and without the memetic stage's batched rounds (``DiffProfile.memetic_batch``).
+program), with and without the memetic stage's batched rounds (``MemeticSettings.memetic_batch``).
 
     .venv/bin/python bench/cup_fits.py [--device cpu|cuda] [--threads 2] [--cases cup_1 cup_2]
         [--seeds 1 2] [--batch off on] [--out results/bench/cup_fits]

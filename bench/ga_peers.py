@@ -4,7 +4,7 @@
         [--seeds 0 1 2] [--algorithms ga random cma] [--stats FILE] [--out results/bench/ga_peers]
 
 All three minimise the same objective as ``ipm reconstruct --method ga`` (the tree loss of the
-case's input view, ``ipm.methods.ga.problem_objective``) over the same unit-cube genome. The
+case's input view, ``ipm.losses.tree_objective``, built by ``problem_objective``) over the same unit-cube genome. The
 budget counts every evaluation of an objective: the GA searches for ``--budget`` evaluations
 (default 5000, the authors' code configuration; the paper's text gives 50 000 for trees) after
 its gene statistics, which cost ``2 * stats_samples`` evaluations more (2000 in the default

@@ -39,8 +39,8 @@ DEFAULT_FOV = np.radians(50.0)
 portrait (about 50 degrees) and landscape (about 69)."""
 FOV_GRID = (25.0, 31.2, 38.7, 47.7, 58.2, 70.0)
 """Horizontal fields of view (degrees) tried by ``ipm reconstruct --fov-grid`` without values
-(``DiffProfile.fov_grid``): six points geometric in tan(fov / 2) from a short telephoto's to a
-wide phone camera's."""
+(``CameraSettings.fov_grid`` in ``ipm.search.moves.camera``): six points geometric in tan(fov / 2)
+from a short telephoto's to a wide phone camera's."""
 
 
 def attitude(pitch, roll, xp=np):
@@ -83,8 +83,8 @@ class UnknownCamera:
     foot: tuple[float, float, int, int] = (0.0, 0.0, 1, 1)
     """The mask's foot pixel (x, y: the lowest row's middle) and the image's width and height."""
     fov_chosen: bool = False
-    """Whether the held field of view was chosen by the fit from a grid (``DiffProfile.fov_grid``)
-    rather than given."""
+    """Whether the held field of view was chosen by the fit from a grid (``CameraSettings.fov_grid``
+    in ``ipm.search.moves.camera``) rather than given."""
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the camera genes."""
