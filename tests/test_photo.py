@@ -194,13 +194,13 @@ def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
 def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, monkeypatch):
     """With ``pitch_starts`` the memetic stage runs free, then once per pitch with the camera's pitch
     held there (starts, steps and the last generation)."""
-    import ipm.methods.diff as diff
+    import ipm.search.loop as loop
     from ipm.generators import get_generator
     from ipm.methods import METHODS
     from ipm.problem import POSE_NAMES
 
     ip = len(get_generator("dishes").spec) + len(POSE_NAMES)  # the pitch gene
-    seen, real = [], diff.memetic
+    seen, real = [], loop.memetic
 
     def spy(initial, evaluate, clip, *args, **kwargs):
         out = real(initial, evaluate, clip, *args, **kwargs)
@@ -208,7 +208,7 @@ def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, 
                            | {round(float(np.degrees(i.best_z[ip])), 6) for i in out}))
         return out
 
-    monkeypatch.setattr(diff, "memetic", spy)
+    monkeypatch.setattr(loop, "memetic", spy)
     METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes", profile="smoke",
                          progress=False, pitch_starts=(10.0, 40.0))
     assert len(seen) == 3 and len(seen[0]) > 1 and seen[1:] == [[10.0], [40.0]]  # the free run first
@@ -220,12 +220,12 @@ def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     stays the given one, and the memetic stage runs once per pitch start (only when it is given)."""
     import pandas as pd
 
-    import ipm.methods.diff as diff
+    import ipm.search.loop as loop
     from ipm.methods import METHODS
     from ipm.profiles import get_profile
 
-    runs, real = [], diff.memetic
-    monkeypatch.setattr(diff, "memetic", lambda *a, **k: runs.append(1) or real(*a, **k))
+    runs, real = [], loop.memetic
+    monkeypatch.setattr(loop, "memetic", lambda *a, **k: runs.append(1) or real(*a, **k))
     info = METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes",
                                 profile="smoke", progress=False, pitch_starts=(10.0, 30.0, 50.0))
     assert info["method"] == "photo_fov" and info["camera_error"]["fov_rel"] == pytest.approx(0.0, abs=1e-6)
@@ -234,7 +234,7 @@ def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
                      progress=False, pitch_starts=(10.0, 30.0, 50.0), focal_sweep=1, focal_steps=2)
     assert len(runs) == 5  # without the field of view: one memetic stage
     focal = pd.read_csv(tmp_path / "bare" / "trace.csv").query("stage == 'focal'")
-    assert len(focal) and set(focal["res"]) == {get_profile("smoke").refine_res[-1]}  # its steps' size too
+    assert len(focal) and set(focal["res"]) == {get_profile("smoke").loop.refine_res[-1]}  # its steps' size too
 
 
 @pytest.mark.slow
