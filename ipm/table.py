@@ -13,10 +13,14 @@ are empty and show as "-".
   and the worst case;
 - ``table_iou.csv``: label x case (then aggregates) of the mean 64-view IoU, as the paper lays out;
 - ``table1.md``: Markdown tables per class and split (test first) for the README.
+
+A row's headline in Table 1 is its method's ``scored_by`` (``ipm.methods``): the shape IoU where
+the camera is withheld, its cells then also give the world IoU and the camera's errors.
 """
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +41,26 @@ MEANS = ("chamfer_l2", "chamfer_l1", "malformed_share", *RECOVERY_COLUMNS, *CAME
 """Metrics summarised by their mean over seeds."""
 CLASS_NAMES = {"dishes": "cups", "trees": "trees", "buildings": "buildings"}
 """Table names of the classes, by the generator that reconstructs them."""
+WORDS = {"iou_mean": "world", "shape_iou": "shape"}
+"""How a cell names an IoU that is not its table's metric."""
+CAMERA_WORDS = {"camera_pitch_err_deg": "pitch error {:.1f}°", "camera_fov_err_pct": "FOV error {:.1f}%"}
+"""How a camera-withheld row's cell gives the camera's errors (``CAMERA_COLUMNS``)."""
+_ROW_ID = re.compile(r"(?P<name>[a-z0-9_]+?)_(?P<views>[0-9]+)v(_[A-Za-z0-9_]+)?")
+
+
+def scored_by(row: str) -> str:
+    """The headline metric of row id ``row`` (``<method>_<N>v[_<tag>]``): its method's
+    ``scored_by``; the world IoU for rows of no catalogued method (reference lines)."""
+    from ipm.methods import METHODS
+
+    m = _ROW_ID.fullmatch(row)
+    return METHODS[m["name"]].scored_by if m and m["name"] in METHODS else "iou_mean"
+
+
+def headline(row: str, metric: str) -> str:
+    """What a cell of ``row`` in a table of ``metric`` leads with: the row's headline in Table 1
+    (``iou_mean``), ``metric`` itself in every other table."""
+    return scored_by(row) if metric == "iou_mean" else metric
 
 
 def _row(metrics_path: Path) -> dict:
@@ -94,8 +118,6 @@ def summary_table(df: pd.DataFrame) -> pd.DataFrame:
             if len(part) < len(cases):  # the row skipped some of the group's cases: no average
                 continue
             runs = df[(df["row"] == row) & df["case"].isin(cases)]
-            by_seed = runs.pivot_table(index="seed", columns="case", values="iou_mean", aggfunc="first")
-            complete = by_seed.dropna()  # seeds every case of the group has
             agg = {k: part.iloc[0][k] for k in ("row", "label", "kind")}
             agg.update(split=split, generator=gen, family=family, case=f"{CLASS_NAMES.get(gen, gen)}/{split}/{family}",
                        n_cases=len(part), n_seeds=int(part["n_seeds"].max()),
@@ -103,7 +125,10 @@ def summary_table(df: pd.DataFrame) -> pd.DataFrame:
             for m in SPREAD:
                 agg[m] = float(part[m].mean()) if part[m].notna().all() else np.nan
                 agg[f"{m}_worst"] = float(part[m].min()) if part[m].notna().all() else np.nan
-            agg["iou_mean_std"] = (float(complete.mean(axis=1).std(ddof=1))
+            for m in dict.fromkeys(("iou_mean", scored_by(row))):  # the world IoU's spread, and the headline's
+                by_seed = runs.pivot_table(index="seed", columns="case", values=m, aggfunc="first")
+                complete = by_seed.dropna()  # seeds every case of the group has
+                agg[f"{m}_std"] = (float(complete.mean(axis=1).std(ddof=1))
                                    if len(complete) > 1 and agg["n_failed"] == 0 else np.nan)
             agg.update({m: float(part[m].mean()) if part[m].notna().any() else np.nan for m in MEANS})
             aggregates.append(agg)
@@ -125,11 +150,30 @@ def _cell(mean: float, std: float, worst: float, n_failed: int = 0, n: int = 1) 
     return text
 
 
-def table_blocks(summary: pd.DataFrame, metric: str = "iou_mean") -> list[tuple[str, list[str], list[list[str]]]]:
-    """Tables of ``metric`` as (title, header, rows of cells), one per class and split, test split
-    first: rows x cases and aggregates; cells are mean ± standard deviation over seeds (worst
-    seed); aggregates are means over the cases, ± the standard deviation over seeds of that mean
-    (worst case)."""
+SHAPE_NOTE = ("{rows}: scored by the shape IoU (the same 64-view IoU after the best similarity alignment), the world "
+              "IoU and the camera's errors beside it, because their camera is withheld and one uncalibrated photo "
+              "fixes neither the object's size against its distance nor, for a cup, the lens.")
+"""The line under a Table 1 block with camera-withheld rows."""
+
+
+def _line_cell(r, metric: str, n: int) -> str:
+    """Summary line ``r``'s cell in a table of ``metric``: :func:`_cell` of its headline; where that
+    is not ``metric`` (a camera-withheld row in Table 1), named, then ``metric`` and the camera's errors."""
+    lead = headline(r.row, metric)
+    text = _cell(getattr(r, lead), getattr(r, f"{lead}_std", np.nan), getattr(r, f"{lead}_worst", np.nan),
+                 int(r.n_failed), n)
+    if lead == metric or text == "-":
+        return text
+    beside = [(f"{WORDS[metric]} {{:.3f}}", getattr(r, metric, np.nan)),
+              *((words, getattr(r, c, np.nan)) for c, words in CAMERA_WORDS.items())]
+    return " · ".join([f"{WORDS[lead]} {text}", *(words.format(v) for words, v in beside if np.isfinite(v))])
+
+
+def table_blocks(summary: pd.DataFrame, metric: str = "iou_mean") -> list[tuple[str, list[str], list[list[str]], str]]:
+    """Tables of ``metric`` as (title, header, rows of cells, a note or ""), one per class and split,
+    test split first: rows x cases and aggregates; cells are mean ± standard deviation over seeds
+    (worst seed); aggregates are means over the cases, ± the standard deviation over seeds of that
+    mean (worst case). Camera-withheld rows lead with their headline (:func:`headline`), the note says so."""
     out = []
     for split in ("test", "dev"):
         for gen in summary["generator"].dropna().unique():
@@ -137,27 +181,28 @@ def table_blocks(summary: pd.DataFrame, metric: str = "iou_mean") -> list[tuple[
             if part.empty:
                 continue
             cols = list(dict.fromkeys(part["case"]))
-            rows = []
+            rows, by_shape = [], []
             for label, g in part.groupby("label", sort=False):
                 by_case = {r.case: r for r in g.itertuples()}
+                if headline(g["row"].iloc[0], metric) != metric:
+                    by_shape.append(label)
                 cells = [label]
                 for c in cols:
                     r = by_case.get(c)
                     n = 0 if r is None else (r.n_cases if "/" in r.case else r.n_seeds)
-                    cells.append("" if r is None else _cell(getattr(r, metric), getattr(r, f"{metric}_std", np.nan),
-                                                            getattr(r, f"{metric}_worst", np.nan), int(r.n_failed),
-                                                            int(n)))
+                    cells.append("" if r is None else _line_cell(r, metric, int(n)))
                 rows.append(cells)
-            out.append((f"{CLASS_NAMES.get(gen, gen)}, {split} split ({metric})", ["row", *cols], rows))
+            note = SHAPE_NOTE.format(rows=", ".join(by_shape)) if by_shape else ""
+            out.append((f"{CLASS_NAMES.get(gen, gen)}, {split} split ({metric})", ["row", *cols], rows, note))
     return out
 
 
 def markdown(summary: pd.DataFrame, metric: str = "iou_mean") -> str:
-    """:func:`table_blocks` as Markdown."""
+    """:func:`table_blocks` as Markdown, each block's note under it."""
     lines = []
-    for title, header, rows in table_blocks(summary, metric):
+    for title, header, rows, note in table_blocks(summary, metric):
         lines += [f"**{title}**", "", "| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-        lines += ["| " + " | ".join(r) + " |" for r in rows] + [""]
+        lines += ["| " + " | ".join(r) + " |" for r in rows] + [""] + ([note, ""] if note else [])
     return "\n".join(lines)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,11 +162,12 @@ def _members(part: pd.DataFrame, column: str) -> list[str]:
 
 
 def _metric_cell(line, metric: str, text: str, why: str, caveat: str) -> dict:
-    """One cell: ``text`` from ``table_blocks`` split into the value and its spread, the value for
-    sorting (``v``), classes (failed, n/a, partly failed, caveat) and as title the failure reasons
-    ``why`` and the runs the ``caveat`` is about."""
+    """One cell: ``text`` from ``table_blocks`` split into the value (named where it is a row's
+    headline other than the table's metric, "shape 0.910") and the rest, the value of ``metric``
+    for sorting and the best mark (``v``), classes (failed, n/a, partly failed, caveat) and as
+    title the failure reasons ``why`` and the runs the ``caveat`` is about."""
     value = np.nan if line is None else float(getattr(line, metric))
-    main, _, rest = text.partition(" ")
+    main, rest = re.fullmatch(r"((?:[a-z]+ )?\S*) ?(.*)", text).groups()
     cell = {"v": f"{value:.6g}" if np.isfinite(value) else "", "main": main, "rest": rest,
             "title": "; ".join(t for t in (why, caveat) if t), "cls": ["caveat"] if caveat else []}
     if line is None:
@@ -201,7 +203,7 @@ def metric_blocks(summary: pd.DataFrame, df: pd.DataFrame, spec: MetricTable, sp
     class aggregates), laid out and worded by ``ipm.table.table_blocks``; each cell with its value
     (for sorting), the best mark and, for failures, the reason. Rows and columns without any value
     or failure (e.g. parameter errors of a baseline) are left out."""
-    from ipm.table import CLASS_NAMES, table_blocks
+    from ipm.table import CLASS_NAMES, headline, table_blocks
 
     blocks = []
     for gen in summary["generator"].dropna().unique():
@@ -210,14 +212,15 @@ def metric_blocks(summary: pd.DataFrame, df: pd.DataFrame, spec: MetricTable, sp
             continue
         scaled = [c for c in (spec.metric, f"{spec.metric}_std", f"{spec.metric}_worst") if c in part]
         part = part.assign(**{c: part[c] * spec.scale for c in scaled})
-        [(_, header, text_rows)] = table_blocks(part, spec.metric)
+        [(_, header, text_rows, note)] = table_blocks(part, spec.metric)
         columns = header[1:]
         lines = {(r.label, r.case): r for r in part.itertuples()}
+        leads = {r.label: headline(r.row, spec.metric) for r in part.itertuples()}
         members = {c: _members(part, c) for c in columns}
         failed = df["note"].map(_failed)
         doubtful = (df[spec.caveat] == False) if spec.caveat in df else pd.Series(False, index=df.index)  # noqa: E712
         rows = [{"label": label, "kind": part.loc[part["label"] == label, "kind"].iloc[0],
-                 "cells": [_metric_cell(lines.get((label, c)), spec.metric, text,
+                 "cells": [_metric_cell(lines.get((label, c)), leads[label], text,
                                         _runs_where(df, label, members[c], failed),
                                         _runs_where(df, label, members[c], doubtful, f"† {spec.caveat_words}"))
                            for c, text in zip(columns, texts)]}
@@ -229,6 +232,7 @@ def metric_blocks(summary: pd.DataFrame, df: pd.DataFrame, spec: MetricTable, sp
         _mark_best(rows, spec.higher_is_better)
         name = CLASS_NAMES.get(gen, gen)
         blocks.append({"title": f"{name}, {split} split", "metric": spec.metric, "split": split, "rows": rows,
+                       "note": note,
                        "columns": [{"name": columns[i], "aggregate": "/" in columns[i],
                                     "title": f"mean over the {split} {name} {FAMILIES[columns[i].rsplit('/', 1)[-1]]}"
                                     if "/" in columns[i] else ""} for i in keep]})
@@ -292,14 +296,18 @@ def _shown_run(g: pd.DataFrame) -> pd.Series:
 
 
 def _run_card(g: pd.DataFrame, results: Path, models: bool) -> dict:
-    """One method on one case: its seeds' IoUs, the shown seed's metrics, pictures, trace and 3D view."""
+    """One method on one case: its seeds' headline IoUs, the shown seed's metrics, pictures, trace and 3D view."""
+    from ipm.table import scored_by
+
     first = _shown_run(g)
     row, case, seed = first["row"], first["case"], int(first["seed"])
+    lead = scored_by(row)
     folder = results / "evaluate" / row / case / f"s{seed}"
     recon = results / "reconstruct" / row / case / f"s{seed}"
     card = {"label": first["label"], "kind": first["kind"], "seed": seed, "failed": _failed(first["note"]),
             "note": first["note"] if isinstance(first["note"], str) else "",
-            "seeds": [{"seed": int(r.seed), "iou": _text(r.iou_mean), "failed": _failed(r.note),
+            "per_seed": "shape IoU" if lead == "shape_iou" else "IoU",
+            "seeds": [{"seed": int(r.seed), "iou": _text(getattr(r, lead)), "failed": _failed(r.note),
                        "note": r.note if isinstance(r.note, str) else ""} for r in g.itertuples()],
             "metrics": [(name, _text(_number(first, key), fmt)) for name, key, fmt in (
                 ("IoU", "iou_mean", "{:.3f}"), ("shape IoU", "shape_iou", "{:.3f}"), ("vIoU", "viou", "{:.3f}"),

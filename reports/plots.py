@@ -63,12 +63,19 @@ def _trace_plot(trace: pd.DataFrame, loss: str = "silhouette"):
 
 
 def _aggregate_bars(summary: pd.DataFrame):
-    """Class aggregates of the test split (mean over cases, error bar: std over seeds)."""
+    """Class aggregates of the test split (mean over cases, error bar: std over seeds) of each row's
+    headline: the shape IoU for a camera-withheld row (labelled so), else the world IoU."""
+    from ipm.table import WORDS, scored_by
+
     agg = summary[summary["case"].str.contains("/", na=False) & (summary["split"] == "test")]
-    if agg.empty or agg["iou_mean"].isna().all():
+    bars = pd.DataFrame([{"case": line["case"], "value": line[m], "spread": line.get(f"{m}_std", np.nan),
+                          "label": line["label"] if m == "iou_mean" else f"{line['label']}, {WORDS[m]} IoU"}
+                         for _, line in agg.iterrows() for m in [scored_by(line["row"])]],
+                        columns=["case", "label", "value", "spread"])
+    if bars["value"].isna().all():
         return None
-    wide = agg.pivot_table(index="case", columns="label", values="iou_mean", aggfunc="first")
-    err = agg.pivot_table(index="case", columns="label", values="iou_mean_std", aggfunc="first").reindex_like(wide)
+    wide = bars.pivot_table(index="case", columns="label", values="value", aggfunc="first")
+    err = bars.pivot_table(index="case", columns="label", values="spread", aggfunc="first").reindex_like(wide)
     fig, ax = plt.subplots(figsize=(8, 3.2))
     wide.plot.bar(ax=ax, rot=0, width=0.8, yerr=err.fillna(0.0), capsize=2)
     ax.set_ylim(max(0.0, float(np.nanmin(wide.to_numpy())) - 0.05), 1.0)

@@ -11,9 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 import trimesh
+from markupsafe import escape
 from PIL import Image
 
 from ipm.io import save_glb, save_ply
+from ipm.methods import row_label
 from ipm.table import build_table
 from reports import build
 from reports.browser import check_report
@@ -37,15 +39,15 @@ def _png(path: Path, colour, size=(24, 16)) -> None:
     Image.new("RGB", size, colour).save(path)
 
 
-def _run(root: Path, row, label, kind, case, seed, iou) -> str:
-    """metrics.json, row.json and the pictures of one run; its mesh (GLB for ours, PLY otherwise),
-    trace and benchmark file."""
+def _run(root: Path, row, label, kind, case, seed, iou, **extra) -> str:
+    """metrics.json (``extra`` over the defaults), row.json and the pictures of one run; its mesh
+    (GLB for ours, PLY otherwise), trace and benchmark file."""
     folder = root / "results/evaluate" / row / case / f"s{seed}"
     recon = root / "results/reconstruct" / row / case / f"s{seed}"
     recon.mkdir(parents=True)
     metrics = {"failed": FAILURE} if iou is None else {
         "iou_mean": iou, "shape_iou": iou, "viou": iou - 0.2, "chamfer_l1": 0.05 / iou, "chamfer_l2": 0.004 / iou,
-        "n_triangles": 320, "malformed_share": 0.01, "recon_watertight": kind != "baseline"}
+        "n_triangles": 320, "malformed_share": 0.01, "recon_watertight": kind != "baseline", **extra}
     _png(folder / "gallery.png", (90, 120, 200), (72, 48))
     _png(folder / "preview.png", (200, 200, 200))
     (folder / "metrics.json").write_text(json.dumps(metrics))
@@ -147,6 +149,46 @@ def test_page_is_self_contained_with_everything_a_reader_needs(report):
     timing = text[text.index('id="timing"'):text.index('id="cases"')]
     ours = timing[timing.index(f"<td>{OURS}</td>"):]
     assert ours[:ours.index("</tr>")].endswith("<td>510</td>")  # peak RSS of ours' two jobs (500 and 510 MB)
+
+
+def test_a_camera_withheld_row_leads_with_its_shape_iou_and_wins_by_it(report, tmp_path):
+    """Table 1 on the page: the photo row's cell is "shape <mean>" (its value, sorted and compared
+    for the best mark), the world IoU and the camera's errors beside it, a note under the table;
+    the diff row's cells are as on a page without it; the shape-IoU table stays plain."""
+    photo = row_label("photo", 1)
+    values = {"cup_t1": [(0.60, 0.96, 2.0, 10.0), (0.56, 0.94, 4.0, 30.0)], "cup_goblet": [(0.70, 0.90, 1.0, 5.0)]}
+    runs = [r for r in RUNS if r[0] == "diff_1v"]
+    files = [_run(tmp_path, *r) for r in runs]
+    files += [_run(tmp_path, "photo_1v", photo, "method", case, seed, world, shape_iou=shape,
+                   camera_pitch_err_deg=pitch, camera_fov_err_pct=fov)
+              for case, seeds in values.items() for seed, (world, shape, pitch, fov) in enumerate(seeds)]
+    res = tmp_path / "results"
+    out = {k: str(res / f"{k}.csv") for k in ("table", "table_iou", "table_summary")}
+    build_table(files, out["table"], out["table_iou"], out["table_summary"])
+    html = res / "report" / "index.html"
+    build.build_report(table_csv=out["table"], wide_csv=out["table_iou"], summary_csv=out["table_summary"],
+                       metrics=files, out_html=str(html), config={"cases": ["cup_t1", "cup_goblet"]})
+    summary, table, text = pd.read_csv(out["table_summary"]), pd.read_csv(out["table"]), html.read_text()
+    [block] = build.metric_blocks(summary, table, build.TABLE1, "test")
+    cells = _cells([block])
+    world, shape, pitch, fov = (np.array(v) for v in zip(*values["cup_t1"]))
+    cell = cells[(photo, "cup_t1")]
+    assert cell["main"] == f"shape {shape.mean():.3f}" and float(cell["v"]) == pytest.approx(shape.mean())
+    assert cell["rest"] == (f"± {shape.std(ddof=1):.3f} (worst {shape.min():.3f}) · world {world.mean():.3f} · "
+                            f"pitch error {pitch.mean():.1f}° · FOV error {fov.mean():.1f}%")
+    diff_world = np.mean([r[5] for r in runs if r[3] == "cup_t1"])
+    assert shape.mean() > diff_world > world.mean()  # the fixture: the headline wins where the world IoU would not
+    assert "best" in cell["cls"] and "best" not in cells[(OURS, "cup_t1")]["cls"]
+    before = _cells(build.metric_blocks(report["summary"], report["table"], build.TABLE1, "test"))
+    for column in ("cup_t1", "cup_goblet", "cups/test/all"):
+        assert {k: cells[(OURS, column)][k] for k in ("main", "rest", "v")} == \
+            {k: before[(OURS, column)][k] for k in ("main", "rest", "v")}
+    assert photo in block["note"] and OURS not in block["note"] and f"<p class=\"note\">{escape(block['note'])}" in text
+    assert f"{cell['main']}<span class=\"rest\">" in text and "shape IoU per seed" in text
+    legend = [t.get_text() for t in build._aggregate_bars(summary).axes[0].get_legend().get_texts()]
+    assert f"{photo}, shape IoU" in legend and OURS in legend  # the bars of the aggregates lead with it too
+    shape_table = _cells(build.metric_blocks(summary, table, build.SIBLINGS[0], "test"))
+    assert build.SIBLINGS[0].metric == "shape_iou" and shape_table[(photo, "cup_t1")]["main"] == f"{shape.mean():.3f}"
 
 
 def test_pictures_missing_on_disk_say_so(report, tmp_path):

@@ -7,15 +7,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from ipm.methods import row_label
 from ipm.table import build_table
 
 SPLIT = {"cup_1": "dev", "cup_ext": "dev", "cup_t1": "test", "cup_t2": "test", "cup_goblet": "test"}
 
 
-def _run(root, row, label, kind, case, seed, iou, note=""):
+def _run(root, row, label, kind, case, seed, iou, note="", **extra):
     folder = root / "evaluate" / row / case / f"s{seed}"
     folder.mkdir(parents=True)
-    metrics = {"failed": note} if iou is None else {"iou_mean": iou, "shape_iou": min(1.0, iou + 0.01), "viou": 0.5}
+    metrics = {"failed": note} if iou is None else {"iou_mean": iou, "shape_iou": min(1.0, iou + 0.01), "viou": 0.5,
+                                                    **extra}
     (folder / "metrics.json").write_text(json.dumps(metrics))
     (folder / "row.json").write_text(json.dumps({"label": label, "kind": kind, "split": SPLIT[case],
                                                  "generator": "dishes", "seed": seed, "seconds": 1.0,
@@ -92,3 +94,58 @@ def test_a_withheld_cameras_errors_reach_the_table(tmp_path):
     assert summary.loc[("photo", "cup_1"), "camera_pitch_err_deg"] == pytest.approx(2.5)
     assert summary.loc[("photo", "cup_1"), "camera_fov_err_pct"] == pytest.approx(15.0)
     assert np.isnan(summary.loc[("ours", "cup_1"), "camera_pitch_err_deg"])
+
+
+def _photo_and_diff(root, rows=("photo_1v", "diff_1v")):
+    """Runs of a camera-withheld row (world IoU low, shape IoU high, camera errors) and of the diff
+    row on two test cases, two seeds; the table built from those of ``rows``; the runs' values."""
+    runs = {"photo_1v": {"cup_t1": [(0.62, 0.91, 2.0, 10.0), (0.58, 0.93, 4.0, 20.0)],
+                         "cup_goblet": [(0.70, 0.96, 1.0, 5.0), (0.66, 0.90, 3.0, 15.0)]},
+            "diff_1v": {"cup_t1": [(0.80, 0.85, None, None), (0.84, 0.86, None, None)],
+                        "cup_goblet": [(0.90, 0.92, None, None), (0.88, 0.90, None, None)]}}
+    files = []
+    for row in rows:
+        for case, seeds in runs[row].items():
+            for seed, (world, shape, pitch, fov) in enumerate(seeds):
+                camera = {} if pitch is None else {"camera_pitch_err_deg": pitch, "camera_fov_err_pct": fov}
+                files.append(_run(root, row, row_label(row.split("_1v")[0], 1), "method", case, seed, world,
+                                  shape_iou=shape, **camera))
+    out = {k: str(root / f"{k}.csv") for k in ("long", "wide", "summary")}
+    build_table(files, out["long"], out["wide"], out["summary"], str(root / "table1.md"))
+    return pd.read_csv(out["summary"]), (root / "table1.md").read_text(), runs
+
+
+def _md_cells(md: str, label: str) -> list[str]:
+    """The cells of ``label``'s line in the first (test split, world IoU) block of ``md``."""
+    line = next(line for line in md.splitlines() if line.startswith(f"| {label} |"))
+    return [c.strip() for c in line.strip("|").split("|")][1:]
+
+
+def test_a_camera_withheld_row_leads_with_its_shape_iou_the_world_iou_and_camera_errors_beside_it(tmp_path):
+    """photo and photo_fov are scored by the shape IoU (``Method.scored_by``): its mean ± std
+    (worst seed) leads the cell, named, then the world IoU and the camera's errors; the class
+    aggregates spread the shape IoU too; a note under the table says why; the diff row is as without it."""
+    from ipm.table import SHAPE_NOTE, scored_by
+
+    assert scored_by("photo_1v") == scored_by("photo_fov_1v") == scored_by("photo_1v_fovgrid") == "shape_iou"
+    assert scored_by("diff_1v") == scored_by("line_convex_hull") == "iou_mean"
+    summary, md, runs = _photo_and_diff(tmp_path / "both")
+    photo, diff = row_label("photo", 1), row_label("diff", 1)
+    cells = _md_cells(md, photo)
+    for cell, case in zip(cells, ("cup_t1", "cup_goblet")):
+        world, shape, pitch, fov = (np.array(v) for v in zip(*runs["photo_1v"][case]))
+        assert cell == (f"shape {shape.mean():.3f} ± {shape.std(ddof=1):.3f} (worst {shape.min():.3f}) · "
+                        f"world {world.mean():.3f} · pitch error {pitch.mean():.1f}° · FOV error {fov.mean():.1f}%")
+    values = np.array([runs["photo_1v"][c] for c in ("cup_t1", "cup_goblet")])  # case x seed x (world, shape, ...)
+    shape_by_case, shape_by_seed = values[..., 1].mean(axis=1), values[..., 1].mean(axis=0)
+    assert cells[-1].startswith(f"shape {shape_by_case.mean():.3f} ± {shape_by_seed.std(ddof=1):.3f} "
+                                f"(worst {shape_by_case.min():.3f}) · world {values[..., 0].mean():.3f} · ")
+    agg = summary.set_index(["label", "case"]).loc[(photo, "cups/test/all")]
+    assert agg["shape_iou_std"] == pytest.approx(shape_by_seed.std(ddof=1), abs=1e-6)
+    assert SHAPE_NOTE.format(rows=photo) in md.split("(shape_iou)")[0]  # under the world-IoU tables only
+    assert all("shape" not in c and "world" not in c for c in _md_cells(md.split("(shape_iou)")[1], photo))
+    alone, alone_md, _ = _photo_and_diff(tmp_path / "alone", rows=("diff_1v",))
+    assert _md_cells(md, diff) == _md_cells(alone_md, diff) and not any("shape" in c for c in _md_cells(md, diff))
+    world = np.array(runs["diff_1v"]["cup_t1"])[:, 0]
+    assert _md_cells(md, diff)[0] == f"{world.mean():.3f} ± {world.std(ddof=1):.3f} (worst {world.min():.3f})"
+    assert "scored by the shape IoU" not in alone_md
