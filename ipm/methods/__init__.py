@@ -91,3 +91,4 @@ declare("diffsdf", "diffSDF-style ({views})", "baselines.diffsdf:run_diffsdf", l
 declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visual_hull", layout="hemi", seeded=False)
 declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")
 declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")
+declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi")
