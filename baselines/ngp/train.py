@@ -95,7 +95,8 @@ def make_occupancy_update(prof, ext: tuple):
 
 
 def fit(data: dict, bg, ext: np.ndarray, prof, seed: int, progress: bool = False):
-    """The fitted field's parameters and the run's statistics (losses, occupancy, samples, times)."""
+    """The fitted field's parameters and the run's statistics (losses, the final ones averaged over
+    the last twentieth of the steps; occupancy, sample spacing, times)."""
     t0 = time.perf_counter()
     key = jax.random.PRNGKey(seed)
     key, kinit = jax.random.split(key)
