@@ -9,6 +9,7 @@ import numpy as np
 import trimesh
 
 from ipm.errors import UserError
+from ipm.hull import object_box
 from ipm.io import load_views
 from ipm.io.views import Views
 from ipm.methods.results import write_result as write_folder
@@ -17,6 +18,17 @@ from ipm.methods.results import write_result as write_folder
 def input_views(views_path: str | Path, n_input_views: int | None, minimum: int = 2) -> Views:
     """The first ``n_input_views`` views of ``views_path`` (all if None); at least ``minimum``."""
     return load_views(views_path).first(n_input_views, minimum)
+
+
+def begin(profiles: dict, profile: str, views_path, n_input_views: int | None):
+    """What a volumetric baseline starts from: its named profile (``UserError`` naming the known
+    ones), the start's wall and CPU clocks, the input views and the object box around them."""
+    if profile not in profiles:
+        raise UserError(f"unknown profile {profile!r} (known: {', '.join(profiles)})")
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    views = input_views(views_path, n_input_views)
+    lo, hi = object_box(views)
+    return profiles[profile], t0, cpu0, views, lo, hi
 
 
 def extract_surface(field: np.ndarray, lo: np.ndarray, hi: np.ndarray, level: float,

@@ -28,11 +28,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from tqdm import tqdm
 
-from baselines.common import extract_surface, input_views, write_result
-from ipm.hull import object_box
+from baselines.common import begin, extract_surface, write_result
 from baselines.diffsdf import field as fieldlib
 from baselines.diffsdf.render import pixel_rays
-from ipm.errors import UserError
 from ipm.io.views import resize_masks
 
 
@@ -194,12 +192,7 @@ def stage_data(views, targets: np.ndarray, lo: np.ndarray, hi: np.ndarray, shape
 def run_diffsdf(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                 n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline diffsdf``: OUT/mesh.ply (world frame), timing.json, info.json."""
-    if profile not in PROFILES:
-        raise UserError(f"unknown profile {profile!r} (known: {', '.join(PROFILES)})")
-    prof = PROFILES[profile]
-    t0, cpu0 = time.perf_counter(), time.process_time()
-    views = input_views(views_path, n_input_views)
-    lo, hi = object_box(views)
+    prof, t0, cpu0, views, lo, hi = begin(PROFILES, profile, views_path, n_input_views)
     sdf, stats = optimise(views, lo, hi, prof, seed, progress)
     verts, faces = extract_surface(sdf, lo, hi, 0.0, inside_positive=False)
     info = {"method": "diffsdf", "views": len(views), "profile": profile, "settings": asdict(prof),

@@ -21,10 +21,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from PIL import Image
 
-from baselines.common import extract_surface, input_views, write_result
+from baselines.common import begin, extract_surface, write_result
 from baselines.ngp.encoding import HashGrid
-from ipm.errors import UserError
-from ipm.hull import object_box
 
 
 @dataclass(frozen=True)
@@ -146,12 +144,7 @@ def drop_floaters(verts: np.ndarray, faces: np.ndarray, keep: float) -> tuple[np
 def run_ngp(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
             n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline ngp``: OUT/mesh.ply (world frame), timing.json, info.json."""
-    if profile not in PROFILES:
-        raise UserError(f"unknown profile {profile!r} (known: {', '.join(PROFILES)})")
-    prof = PROFILES[profile]
-    t0, cpu0 = time.perf_counter(), time.process_time()
-    views = input_views(views_path, n_input_views)
-    lo, hi = object_box(views)
+    prof, t0, cpu0, views, lo, hi = begin(PROFILES, profile, views_path, n_input_views)
     from baselines.ngp import train
 
     data, bg = training_data(views, lo, hi)

@@ -5,14 +5,11 @@ mask value over the views, so the surface sits on the silhouette cones' boundary
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from tqdm import tqdm
 
-from baselines.common import extract_surface, input_views, write_result
-from ipm.hull import grid_points, mask_values, object_box
-from ipm.errors import UserError
+from baselines.common import begin, extract_surface, write_result
+from ipm.hull import grid_points, mask_values
 
 GRID = {"smoke": 48, "default": 128, "paper": 256}
 """Voxels per axis of the carved grid, per profile."""
@@ -30,12 +27,8 @@ def carve(views, lo: np.ndarray, hi: np.ndarray, n: int, progress: bool = False,
 def run_visual_hull(views_path, out, profile: str = "default", seed: int = 0, progress: bool = True,
                     n_input_views: int | None = None, **_) -> dict:
     """``ipm baseline visual_hull``: OUT/mesh.ply (world frame), timing.json, info.json."""
-    if profile not in GRID:
-        raise UserError(f"unknown profile {profile!r} (known: {', '.join(GRID)})")
-    t0 = time.perf_counter()
-    views = input_views(views_path, n_input_views)
-    lo, hi = object_box(views)
-    occ = carve(views, lo, hi, GRID[profile], progress)
+    grid, t0, _, views, lo, hi = begin(GRID, profile, views_path, n_input_views)
+    occ = carve(views, lo, hi, grid, progress)
     verts, faces = extract_surface(occ, lo, hi, 0.5, inside_positive=True)
-    info = {"method": "visual_hull", "views": len(views), "grid": GRID[profile], "box": [lo.tolist(), hi.tolist()]}
+    info = {"method": "visual_hull", "views": len(views), "grid": grid, "box": [lo.tolist(), hi.tolist()]}
     return write_result(out, verts, faces, t0, info)
