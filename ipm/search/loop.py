@@ -18,7 +18,7 @@ from ipm.errors import UserError
 from ipm.io.views import Views, resize_masks
 from ipm.optim.memetic import Individual, adam_steps, memetic
 from ipm.problem import Problem
-from ipm.search.moves import moves_for
+from ipm.search.moves import PHASES, moves_for
 from ipm.search.objective import Objective
 from ipm.search.starts import preset_start
 from ipm.search.trial import Candidate, Tracker, Trial, scorer
@@ -93,7 +93,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     stage's best, :func:`input_iou`). ``start`` makes the memetic stage's first population."""
     loop, mem = profile.loop, profile.memetic
     moves = [m for m in moves_for(problem) if m.applies(problem, profile)]
-    phase = {p: [m for m in moves if m.phase == p] for p in ("memetic", "finalist", "stage", "last", "refine", "end")}
+    phase = {p: [m for m in moves if m.phase == p] for p in PHASES}
     holds = [{}] + [h for m in phase["memetic"] for h in m.holds(problem, profile)]
     total = (len(holds) * mem.ga_iterations * (mem.adam_per_iteration + mem.population)
              + sum(loop.refine_iterations) + len(loop.refine_res)

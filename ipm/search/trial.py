@@ -77,13 +77,13 @@ class Trial:
         return scorer(self.score, seeds)
 
     def tried(self, start: np.ndarray, name: str, steps: int, score: Callable,
-              clip: Callable | None = None, objective=None) -> tuple[np.ndarray, float]:
-        """The best point of ``steps`` Adam steps from ``start`` (``start`` itself for none) under
-        ``objective`` (default: ``steps``), projected by ``clip`` (default ``problem.clip``), and its
-        ``score``, recorded as ``name``."""
+              clip: Callable | None = None) -> tuple[np.ndarray, float]:
+        """The best point of ``steps`` Adam steps from ``start`` (``start`` itself for none) under the
+        ``steps`` objective, projected by ``clip`` (default ``problem.clip``), and its ``score``,
+        recorded as ``name``."""
         problem = self.problem
         ind = Individual(start, problem.key(start), name, lr=self.lr * 0.4)
-        adam_steps(ind, steps, objective or self.steps, clip or problem.clip, self.reject_ratio, self.on_eval)
+        adam_steps(ind, steps, self.steps, clip or problem.clip, self.reject_ratio, self.on_eval)
         cand = ind.z if ind.best_z is None else ind.best_z
         loss = score(cand)
         self.record(name, loss)
