@@ -95,7 +95,7 @@ def camera_rays(cams: list, res: int = 256, fov_deg: float = FOV_DEG) -> tuple[n
     u, v = np.meshgrid(s, -s)  # columns go right (+x), rows go down (-y)
     pix = np.stack([u, v, -np.ones_like(u)], axis=-1).reshape(-1, 3)
     c2w = np.asarray(cams, dtype=float)
-    return c2w[:, :3, 3].copy(), np.einsum("nij,pj->npi", c2w[:, :3, :3], pix).astype(np.float32)
+    return c2w[:, :3, 3].copy(), np.matmul(pix, c2w[:, :3, :3].transpose(0, 2, 1)).astype(np.float32)
 
 
 def raycast_masks(mesh: trimesh.Trimesh, cams: list, res: int = 256, fov_deg: float = FOV_DEG) -> np.ndarray:
