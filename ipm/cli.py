@@ -44,11 +44,16 @@ def _parser() -> argparse.ArgumentParser:
                    help="for a field of view not given: fit once per value with it held and keep the lowest loss "
                         "(no values: 25 to 70 degrees in six steps); about as many times the time")
     r.add_argument("--out", required=True, help="output directory")
-    r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam) or ga (tree-structured GA)")
+    r.add_argument("--method", default="diff", help="search path: diff (memetic + Adam), ga (tree-structured GA) "
+                                                    "or learned (the regressor's proposal alone, no search)")
     r.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
     r.add_argument("--prepared", default=None,
-                   help="the method's preparation file from ipm prepare (ga: gene statistics; default: made in the run)")
+                   help="the method's preparation file from ipm prepare (ga: gene statistics, default: made in "
+                        "the run; learned, and diff with --start learned: the regressor, default: the shipped one)")
+    r.add_argument("--start", default=None, choices=["presets", "learned"],
+                   help="diff: the search's first population (learned: the regressor's proposals first; "
+                        "default: the profile's)")
     r.add_argument("--max-tilt", type=float, default=None,
                    help="diff: let the object lean up to this many radians (default 0: upright, on y = 0)")
     r.add_argument("--window-weight", type=float, default=None,
@@ -58,8 +63,9 @@ def _parser() -> argparse.ArgumentParser:
                         "auto: jax, but mitsuba for an unknown field of view; "
                         "default: the profile's)")
 
-    pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics)")
-    pr.add_argument("method", help="registered method name with a preparation stage (ga)")
+    pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics; learned: "
+                        "the regressor, trained on the generator's samples)")
+    pr.add_argument("method", help="registered method name with a preparation stage (ga, learned)")
     pr.add_argument("--generator", required=True, help="generator name (e.g. trees)")
     pr.add_argument("--out", required=True, help="output file (JSON)")
 
@@ -138,7 +144,7 @@ def _run(args) -> int:
         check_generator(args.method, args.generator)
         extra = {}
         if args.prepared is not None:
-            if method.prepare is None:
+            if method.prepare is None and not (args.method == "diff" and args.start == "learned"):
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
             extra["prepared"] = args.prepared
         for name in ("max_tilt", "window_weight"):  # checked with the profile's other settings
@@ -148,20 +154,24 @@ def _run(args) -> int:
             if args.method != "diff":
                 raise UserError(f"{flag} applies to the diff path only")
             extra[name] = value
-        for flag, value in (("--fov-grid", args.fov_grid), ("--renderer", args.renderer)):
+        for flag, value in (("--fov-grid", args.fov_grid), ("--renderer", args.renderer), ("--start", args.start)):
             if value is not None and args.method not in ("diff", "photo"):
                 raise UserError(f"{flag} applies to the diff path only")
         if args.fov_grid is not None:
             from ipm.photo import FOV_GRID
 
             extra["fov_grid"] = tuple(args.fov_grid) or FOV_GRID  # checked by get_profile
-        if args.renderer is not None:
-            extra["renderer"] = args.renderer
+        for name in ("renderer", "start"):
+            if getattr(args, name) is not None:
+                extra[name] = getattr(args, name)
         views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
         info = method(views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
                       progress=not args.quiet, n_input_views=args.n_input_views, **extra)
-        print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
+        if "final_loss" in info:
+            print(f"{args.out}: final loss {info['final_loss']:.5f} after {info['evaluations']} evaluations")
+        else:
+            print(f"{args.out}: written")
         if args.image is not None:  # the figure a user looks at first
             from ipm.render.preview import photo_sheet
 

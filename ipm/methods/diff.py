@@ -23,18 +23,22 @@ from ipm.profiles import DiffProfile, get_profile
 from ipm.search.loop import reconstruct
 from ipm.search.moves.camera import CameraSettings
 from ipm.search.objective import Objective
+from ipm.search.starts import learned_start, preset_start
 from ipm.search.trial import scorer
 
 
-def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, **overrides):
+def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, prepared=None, **overrides):
     """The diff path on ``views``: the problem, its best ``z``, the trace and the profile (for a
-    camera of unknown field of view and a ``fov_grid``, :func:`fit_fov_grid`)."""
+    camera of unknown field of view and a ``fov_grid``, :func:`fit_fov_grid`). ``prepared``: the
+    learned start's weights (``ipm prepare --method learned``; default the shipped ones)."""
     check_generator("diff", generator)
     prof = get_profile(profile, **overrides)
     if prof.of(CameraSettings).fov_grid and views.camera is not None and not views.camera.fov_known:
         return (*fit_fov_grid(views, generator, prof, seed, progress), prof)
     problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.loop.max_tilt)
-    z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress)
+    start = learned_start(views, prof.loop.learned_proposals, prepared) if prof.loop.start == "learned" \
+        else preset_start
+    z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress, start=start)
     return problem, z, trace, prof
 
 
@@ -88,11 +92,12 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
 
 
 def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
-             seed: int = 0, progress: bool = True, n_input_views: int | None = None, **overrides) -> dict:
+             seed: int = 0, progress: bool = True, n_input_views: int | None = None, prepared=None,
+             **overrides) -> dict:
     """``ipm reconstruct --method diff``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json."""
     t0 = time.perf_counter()
     views = open_views(views_path).first(n_input_views)
-    problem, z, trace, prof = fit(views, generator, profile, seed, progress, **overrides)
+    problem, z, trace, prof = fit(views, generator, profile, seed, progress, prepared=prepared, **overrides)
     info = {"method": "diff", "profile": profile, "seed": seed, **views.input_frame()}
     return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 import pandas as pd
@@ -42,6 +42,13 @@ class LoopSettings(Settings):
     refine_candidates: Annotated[int, at_least(1)] = 1
     """Finalists of the memetic stage (distinct topologies or yaws, :func:`finalists`) each taken through the
     finalist moves and the first refinement stage; the lowest loss goes on (docs/decisions.md, 'Finalists')."""
+    start: Literal["presets", "learned"] = "presets"
+    """The memetic stage's first population (``ipm.search.starts``): the generator's presets and
+    random draws, or the learned regressor's proposals first (``learned_proposals`` of them; the
+    view's camera must be known; docs/decisions.md, 'Learned start')."""
+    learned_proposals: Annotated[int, at_least(1)] = 4
+    """How many of the regressor's proposals (its most probable discrete joints) the learned start puts
+    in the population."""
     max_tilt: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Bound of the two tilt angles (radians); 0 holds the object upright, the scene convention.
     Raise it for objects that may lean (docs/decisions.md, 'Upright objects')."""

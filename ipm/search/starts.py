@@ -2,7 +2,8 @@
 
 A start is a callable ``(problem, settings, rng, prepare) -> list[Individual]`` (``settings``:
 ``ipm.optim.memetic.MemeticSettings``; ``prepare`` adjusts each start, e.g. its scale). Today's
-is :func:`preset_start`; a learned proposal is another, and the loop takes either unchanged.
+is :func:`preset_start`; :func:`learned_start` puts the regressor's proposals first (``ipm.learned``);
+the loop takes either unchanged.
 """
 from __future__ import annotations
 
@@ -33,3 +34,20 @@ def preset_start(problem: Problem, settings: MemeticSettings, rng: np.random.Gen
         z = prepare(problem.initial_z(u, yaw, cameras[i]))
         pop.append(Individual(z, problem.key(z), name, lr=settings.lr))
     return pop
+
+
+def learned_start(views, proposals: int = 4, prepared=None):
+    """A start whose first ``proposals`` individuals are the regressor's proposals for ``views``
+    (``ipm.learned.propose``: its most probable discrete joints), the rest :func:`preset_start`'s."""
+
+    def start(problem: Problem, settings: MemeticSettings, rng: np.random.Generator,
+              prepare=lambda z: z) -> list[Individual]:
+        from ipm.learned.propose import propose
+
+        pop = []
+        for z in propose(problem, views, min(proposals, settings.population), prepared):
+            z = prepare(z)
+            pop.append(Individual(z, problem.key(z), "learned", lr=settings.lr))
+        return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
+
+    return start

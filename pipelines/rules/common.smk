@@ -141,10 +141,22 @@ def method_inputs(wildcards):
     file made with that seed serves every seed)."""
     m = method_of(wildcards)
     out = {"views": method_views_dir(wildcards)}
-    if METHODS[m["name"]].prepare is not None:
+    stage = preparation(m)
+    if stage is not None:
         seed = wildcards.seed if config["prepare_seed"] is None else config["prepare_seed"]
-        out["prepared"] = f"results/prepare/{m['name']}/{case_generator(wildcards)}/s{seed}.json"
+        out["prepared"] = f"results/prepare/{stage}/{case_generator(wildcards)}/s{seed}.json"
     return out
+
+
+def preparation(m):
+    """The preparation stage a methods entry reads, by the name of the method that makes it: its
+    own method's, or the learned regressor's for the diff path started from its proposals
+    (``settings: {start: learned}``); None if it needs none."""
+    if METHODS[m["name"]].prepare is not None:
+        return m["name"]
+    if m["name"] == "diff" and m.get("settings", {}).get("start") == "learned":
+        return "learned"
+    return None
 
 
 RECONSTRUCT_MINUTES = {"smoke": 20, "default": 60, "paper": 24 * 60}
