@@ -64,17 +64,21 @@ def _parser() -> argparse.ArgumentParser:
                         "default: the profile's)")
 
     pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics; learned: "
-                        "the regressor, trained on the generator's samples)")
-    pr.add_argument("method", help="registered method name with a preparation stage (ga, learned)")
+                        "the regressor; occnet: the occupancy network, both trained on the generator's samples)")
+    pr.add_argument("method", help="registered method name with a preparation stage (ga, learned, occnet)")
     pr.add_argument("--generator", required=True, help="generator name (e.g. trees)")
     pr.add_argument("--out", required=True, help="output file (JSON)")
 
-    b = sub.add_parser("baseline", help="run a baseline (diffsdf, visual_hull, colmap_known, colmap_sfm)")
+    b = sub.add_parser("baseline", help="run a baseline (diffsdf, ngp, visual_hull, colmap_known, colmap_sfm, occnet)")
     b.add_argument("name", help="registered baseline name")
     b.add_argument("--views", default=None, help="transforms.json (masks; textured RGB for COLMAP)")
     b.add_argument("--out", required=True, help="output directory (mesh.ply, timing.json, info.json)")
     b.add_argument("--n-input-views", type=int, default=None,
                    help="use only the first N frames of transforms.json (default: all)")
+    b.add_argument("--generator", default=None,
+                   help="occnet: the class whose generator's samples it learns from (e.g. dishes, buildings)")
+    b.add_argument("--prepared", default=None,
+                   help="occnet: its weights from ipm prepare occnet (default: trained in the run)")
 
     e = sub.add_parser("evaluate", help="64-view silhouette IoU and the other metrics")
     e.add_argument("--reference", required=True, help="reference mesh (PLY)")
@@ -140,7 +144,8 @@ def _run(args) -> int:
         GENERATORS[args.generator]  # fail fast on unknown names, before any rendering
         method = METHODS[args.method]
         if not method.uses_generator:
-            raise UserError(f"{args.method!r} is a baseline: use ipm baseline {args.method}")
+            hint = f" --generator {args.generator}" if method.learns_generator else ""
+            raise UserError(f"{args.method!r} is a baseline: use ipm baseline {args.method}{hint}")
         check_generator(args.method, args.generator)
         extra = {}
         if args.prepared is not None:
@@ -194,16 +199,29 @@ def _run(args) -> int:
                               progress=not args.quiet)
         print(f"{args.out}: {args.method} preparation for {args.generator} in {info['seconds']:.1f} s")
     elif args.command == "baseline":
+        from ipm.generators import GENERATORS
         from ipm.methods import METHODS
         from ipm.runtime import set_mitsuba_variant
 
         method = METHODS[args.name]
         if method.uses_generator:
             raise UserError(f"{args.name!r} is not a baseline: use ipm reconstruct --method {args.name}")
+        extra = {}
+        if method.learns_generator:
+            if args.generator is None:
+                raise UserError(f"{args.name!r} learns from a generator's samples: give --generator (e.g. dishes)")
+            GENERATORS[args.generator]  # fail fast on unknown names
+            extra["generator"] = args.generator
+        elif args.generator is not None:
+            raise UserError(f"baseline {args.name!r} takes no --generator")
+        if args.prepared is not None:
+            if method.prepare is None:
+                raise UserError(f"baseline {args.name!r} has no preparation stage (--prepared)")
+            extra["prepared"] = args.prepared
         views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
         info = method(views, args.out, profile=args.profile, seed=args.seed, progress=not args.quiet,
-                      n_input_views=args.n_input_views)
+                      n_input_views=args.n_input_views, **extra)
         if info.get("failed"):
             print(f"{args.out}: no mesh: {info['failed']}")
             return 3

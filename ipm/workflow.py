@@ -71,7 +71,7 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
         from ipm.runtime import machine_info
 
         fn = METHODS[method]
-        extra = {"generator": generator} if fn.uses_generator else {}
+        extra = {"generator": generator} if fn.takes_generator else {}
         if prepared:
             extra["prepared"] = prepared
         fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra,

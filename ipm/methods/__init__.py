@@ -38,6 +38,9 @@ class Method:
     layout: str = "hemi"
     uses_generator: bool = False
     differentiable_only: bool = False
+    learns_generator: bool = False
+    """A baseline that learns a generator's class from its samples without fitting the program
+    (the occupancy network): it takes ``generator=`` (and ``prepared=``) but is scored as a baseline."""
     prepare_entry: str | None = None
     """``module:function`` writing a file per generator and seed (a cached pipeline stage),
     ``prepare(generator, out_path, profile=, seed=, progress=)``; the method takes it as ``prepared=``."""
@@ -46,6 +49,11 @@ class Method:
     scored_by: str = "iou_mean"
     """Table 1's headline metric for its rows: ``shape_iou`` where the camera is withheld (one
     uncalibrated photo fixes neither scale against distance nor a cup's lens), the world IoU beside it."""
+
+    @property
+    def takes_generator(self) -> bool:
+        """Whether a run is passed the case's generator (ours, and baselines that learn its class)."""
+        return self.uses_generator or self.learns_generator
 
     def __call__(self, *args, **kwargs) -> dict:
         return resolve(self.entry)(*args, **kwargs)
@@ -94,3 +102,5 @@ declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visua
 declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")
 declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")
 declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi")
+declare("occnet", "occupancy network ({views})", "baselines.occnet:run_occnet", layout="hemi",
+        learns_generator=True, prepare_entry="baselines.occnet:prepare")
