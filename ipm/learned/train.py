@@ -9,24 +9,26 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass
+from typing import Annotated
 
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.settings import Settings
+from ipm.settings import Range, Settings, at_least
 
 
 @dataclass(frozen=True)
 class TrainSettings(Settings):
     """How much data and training a profile's regressor gets."""
 
-    samples: int = 6000
+    KIND = "learned setting"
+    samples: Annotated[int, at_least(1)] = 6000
     """Training samples drawn (``held_out`` more are drawn for the held-out score)."""
-    held_out: int = 500
-    steps: int = 4000
-    batch: int = 64
-    learning_rate: float = 1e-3
-    pose_weight: float = 1.0
+    held_out: Annotated[int, at_least(0)] = 500
+    steps: Annotated[int, at_least(1)] = 4000
+    batch: Annotated[int, at_least(1)] = 64
+    learning_rate: Annotated[float, Range(1e-6, 1.0)] = 1e-3
+    pose_weight: Annotated[float, at_least(0.0)] = 1.0
     """Weight of the pose terms (yaw and offsets) against the parameters' in the loss."""
 
 
