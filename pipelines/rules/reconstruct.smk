@@ -5,6 +5,8 @@ rule prepare:
         "logs/prepare/{method}/{generator}/s{seed}.log",
     benchmark:
         "logs/benchmark/prepare/{method}/{generator}/s{seed}.tsv"
+    # first when it can: every run of its method waits for it (a training started late is the DAG's tail)
+    priority: 10
     conda:
         "../envs/ipm.yaml"
     threads: 1
