@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from typing import Annotated
 
 import numpy as np
@@ -67,16 +68,24 @@ def _loss_fn(levels, pose_weight):
     return loss
 
 
+@lru_cache(maxsize=1)
+def _batched():
+    """The model over a batch, compiled once per input shape (one function for every call)."""
+    import equinox as eqx
+    import jax
+
+    return eqx.filter_jit(lambda m, a, b: jax.vmap(m)(a, b))
+
+
 def predict(model, image: np.ndarray, cond: np.ndarray, chunk: int = 256) -> dict:
     """The model's outputs for a batch of inputs, as numpy: ``u``, ``probs`` (per discrete
     parameter), ``yaw`` (unit vectors) and ``pose`` (standardised as trained)."""
-    import equinox as eqx
     import jax
     import jax.numpy as jnp
 
     from ipm.learned.network import split_logits
 
-    fn = eqx.filter_jit(lambda m, a, b: jax.vmap(m)(a, b))
+    fn = _batched()
     parts = [fn(model, jnp.asarray(image[i:i + chunk]), jnp.asarray(cond[i:i + chunk]))
              for i in range(0, len(image), chunk)]
     cont, logits, yaw, pose = (np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(4))
