@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 
 def _views(args):
@@ -50,10 +51,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="use only the first N frames of transforms.json (default: all)")
     r.add_argument("--prepared", default=None,
                    help="the method's preparation file from ipm prepare (ga: gene statistics, default: made in "
-                        "the run; learned, and diff with --start learned: the regressor, default: the shipped one)")
+                        "the run; learned, and diff's learned start: the regressor, default: the shipped one)")
     r.add_argument("--start", default=None, choices=["presets", "learned"],
-                   help="diff: the search's first population (learned: the regressor's proposals first; "
-                        "default: the profile's)")
+                   help="diff: the search's first population (learned, the default: the regressor's proposals "
+                        "first where the camera is known; presets: the generator's presets)")
     r.add_argument("--max-tilt", type=float, default=None,
                    help="diff: let the object lean up to this many radians (default 0: upright, on y = 0)")
     r.add_argument("--window-weight", type=float, default=None,
@@ -149,8 +150,12 @@ def _run(args) -> int:
         check_generator(args.method, args.generator)
         extra = {}
         if args.prepared is not None:
-            if method.prepare is None and not (args.method == "diff" and args.start == "learned"):
+            if args.method == "diff" and args.start == "presets":
+                raise UserError("--prepared holds the learned start's weights: not with --start presets")
+            if method.prepare is None and args.method != "diff":
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
+            if not Path(args.prepared).is_file():
+                raise UserError(f"--prepared: no such file {args.prepared}")
             extra["prepared"] = args.prepared
         for name in ("max_tilt", "window_weight"):  # checked with the profile's other settings
             value, flag = getattr(args, name), "--" + name.replace("_", "-")

@@ -126,7 +126,9 @@ def test_the_learned_row_and_start(trained, tmp_path, mitsuba_cpu):
     from ipm.learned.propose import discrete_choices, propose
     from ipm.methods.learned import run_learned
     from ipm.optim.memetic import MemeticSettings
-    from ipm.search.starts import learned_start
+    from ipm.learned.propose import has_weights
+    from ipm.photo import unknown_camera_views
+    from ipm.search.starts import learned_start, preset_start, start_for
     from ipm.synth import synthesize
 
     _, _, path = trained
@@ -142,5 +144,11 @@ def test_the_learned_row_and_start(trained, tmp_path, mitsuba_cpu):
     assert problem.key(zs[0]) != problem.key(zs[1])  # the two handle choices
     pop = learned_start(views, 2, path)(problem, MemeticSettings(population=6), np.random.default_rng(0))
     assert [ind.origin for ind in pop[:2]] == ["learned", "learned"] and len(pop) == 6
+    # the default start is the learned one where it applies, the presets where it does not
+    assert start_for(problem, views, "learned", 2, path) is not preset_start
+    assert start_for(problem, views, "presets", 2, path) is preset_start
+    photo = unknown_camera_views(views, fov_known=False)
+    assert start_for(Problem.for_views(get_generator("dishes"), photo), photo, "learned", 2, path) is preset_start
+    assert not has_weights("trees") and has_weights("dishes") and has_weights("trees", path)
     choices = discrete_choices([np.array([0.1, 0.9]), np.array([0.6, 0.3, 0.1])], 3)
     assert [c for c, _ in choices] == [(1, 0), (1, 1), (1, 2)]

@@ -29,6 +29,11 @@ def weights_path(generator: str, prepared: str | Path | None = None) -> Path:
     return path
 
 
+def has_weights(generator: str, prepared: str | Path | None = None) -> bool:
+    """Whether :func:`weights_path` has weights for ``generator`` (``prepared``, else shipped)."""
+    return prepared is not None or (SHIPPED / f"{generator}.json").exists()
+
+
 @lru_cache(maxsize=4)
 def _load(path: str, generator: str):
     from ipm.learned.network import load

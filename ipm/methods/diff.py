@@ -23,21 +23,21 @@ from ipm.profiles import DiffProfile, get_profile
 from ipm.search.loop import reconstruct
 from ipm.search.moves.camera import CameraSettings
 from ipm.search.objective import Objective
-from ipm.search.starts import learned_start, preset_start
+from ipm.search.starts import start_for
 from ipm.search.trial import scorer
 
 
 def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, prepared=None, **overrides):
     """The diff path on ``views``: the problem, its best ``z``, the trace and the profile (for a
     camera of unknown field of view and a ``fov_grid``, :func:`fit_fov_grid`). ``prepared``: the
-    learned start's weights (``ipm prepare --method learned``; default the shipped ones)."""
+    learned start's weights (``ipm prepare --method learned``; default the shipped ones;
+    ``ipm.search.starts.start_for``)."""
     check_generator("diff", generator)
     prof = get_profile(profile, **overrides)
     if prof.of(CameraSettings).fov_grid and views.camera is not None and not views.camera.fov_known:
         return (*fit_fov_grid(views, generator, prof, seed, progress), prof)
     problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.loop.max_tilt)
-    start = learned_start(views, prof.loop.learned_proposals, prepared) if prof.loop.start == "learned" \
-        else preset_start
+    start = start_for(problem, views, prof.loop.start, prof.loop.learned_proposals, prepared)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress, start=start)
     return problem, z, trace, prof
 

@@ -42,10 +42,11 @@ class LoopSettings(Settings):
     refine_candidates: Annotated[int, at_least(1)] = 1
     """Finalists of the memetic stage (distinct topologies or yaws, :func:`finalists`) each taken through the
     finalist moves and the first refinement stage; the lowest loss goes on (docs/decisions.md, 'Finalists')."""
-    start: Literal["presets", "learned"] = "presets"
-    """The memetic stage's first population (``ipm.search.starts``): the generator's presets and
-    random draws, or the learned regressor's proposals first (``learned_proposals`` of them; the
-    view's camera must be known; docs/decisions.md, 'Learned start')."""
+    start: Literal["presets", "learned"] = "learned"
+    """The memetic stage's first population (``ipm.search.starts``): the learned regressor's
+    proposals first (``learned_proposals`` of them) where it applies (a known camera and weights for
+    the generator), else the generator's presets and random draws; ``presets`` always the latter
+    (docs/decisions.md, 'Learned start')."""
     learned_proposals: Annotated[int, at_least(1)] = 4
     """How many of the regressor's proposals (its most probable discrete joints) the learned start puts
     in the population."""

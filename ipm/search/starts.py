@@ -2,8 +2,8 @@
 
 A start is a callable ``(problem, settings, rng, prepare) -> list[Individual]`` (``settings``:
 ``ipm.optim.memetic.MemeticSettings``; ``prepare`` adjusts each start, e.g. its scale). Today's
-is :func:`preset_start`; :func:`learned_start` puts the regressor's proposals first (``ipm.learned``);
-the loop takes either unchanged.
+are :func:`preset_start` and :func:`learned_start` (the regressor's proposals first, ``ipm.learned``);
+:func:`start_for` picks one for a fit; the loop takes either unchanged.
 """
 from __future__ import annotations
 
@@ -51,3 +51,14 @@ def learned_start(views, proposals: int = 4, prepared=None):
         return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
 
     return start
+
+
+def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=None):
+    """The start of a fit of ``problem`` to ``views`` for the setting ``start``: ``learned`` is
+    :func:`learned_start` where the regressor applies (a known camera; weights for the generator,
+    ``prepared`` or shipped), else :func:`preset_start`, as ``presets`` is always."""
+    from ipm.learned.propose import has_weights
+
+    if start == "learned" and problem.camera is None and has_weights(problem.generator.name, prepared):
+        return learned_start(views, proposals, prepared)
+    return preset_start

@@ -150,11 +150,13 @@ def method_inputs(wildcards):
 
 def preparation(m):
     """The preparation stage a methods entry reads, by the name of the method that makes it: its
-    own method's, or the learned regressor's for the diff path started from its proposals
-    (``settings: {start: learned}``); None if it needs none."""
+    own method's, or the learned regressor's for the diff path started from its proposals (the
+    profile's ``start``, unless the entry's settings say ``start: presets``); None if it needs none."""
+    from ipm.profiles import get_profile
+
     if METHODS[m["name"]].prepare is not None:
         return m["name"]
-    if m["name"] == "diff" and m.get("settings", {}).get("start") == "learned":
+    if m["name"] == "diff" and get_profile(config["profile"], **m.get("settings", {})).loop.start == "learned":
         return "learned"
     return None
 
