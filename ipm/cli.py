@@ -65,8 +65,10 @@ def _parser() -> argparse.ArgumentParser:
                         "default: the profile's)")
 
     pr = sub.add_parser("prepare", help="a method's per-generator preparation stage (ga: gene statistics; learned: "
-                        "the regressor; occnet: the occupancy network, both trained on the generator's samples)")
-    pr.add_argument("method", help="registered method name with a preparation stage (ga, learned, occnet)")
+                        "the regressor; learned_photo: its camera-hidden variant; occnet: the occupancy network, all trained "
+                        "on the generator's samples)")
+    pr.add_argument("method", help="registered method name with a preparation stage (ga, learned, learned_photo, "
+                                   "occnet)")
     pr.add_argument("--generator", required=True, help="generator name (e.g. trees)")
     pr.add_argument("--out", required=True, help="output file (JSON)")
 

@@ -241,13 +241,38 @@ def photo_views(image: str, mask: str | None = None, fov_deg: float | None = Non
                                 fov_known=fov_deg is not None)
 
 
-def unknown_camera_views(views: Views, fov_known: bool) -> Views:
-    """``views`` (one) marked as having an unknown camera (and no pose); the render camera at the
-    prior's middle."""
+def unknown_camera_views(views: Views, fov_known: bool, pitch0: float | None = None) -> Views:
+    """``views`` (one) marked as having an unknown camera (and no pose); the render camera at
+    ``pitch0`` (radians), by default the prior's middle."""
     if len(views) != 1:
         raise UserError(f"an unknown camera needs exactly one view, got {len(views)}")
     from ipm.problem import foot_pixel  # the anchor's foot, so both place the object alike
 
     foot = (*foot_pixel(views.masks[0]), views.width, views.height)
-    camera = UnknownCamera(float(np.mean(PITCH_PRIOR)), float(views.fov_x), fov_known, foot)
+    pitch0 = float(np.mean(PITCH_PRIOR)) if pitch0 is None else float(pitch0)
+    camera = UnknownCamera(pitch0, float(views.fov_x), fov_known, foot)
     return replace(views, c2w=c2w(camera.pitch0)[None], camera=camera, posed=False)
+
+
+def withheld(given: Views, fov_given: bool = False) -> Views:
+    """The first of ``given`` (posed views) as a photo: its camera withheld, and its field of view
+    too unless ``fov_given`` (then :data:`DEFAULT_FOV` is the start)."""
+    return unknown_camera_views(given if fov_given else replace(given, fov_x=DEFAULT_FOV), fov_known=fov_given)
+
+
+def at_proposed_camera(photo: Views, pitch: float, fov: float) -> Views:
+    """A photo's views (camera unknown) with the render camera moved to a proposed ``pitch`` and,
+    where the photo's field of view is not known, the proposed ``fov`` (radians; e.g.
+    ``ipm.learned.propose.propose_camera``)."""
+    known = photo.camera.fov_known
+    return unknown_camera_views(photo if known else replace(photo, fov_x=float(fov)), known, pitch0=pitch)
+
+
+def scored_placement(problem, z: np.ndarray, given: Views) -> tuple[np.ndarray, dict]:
+    """A camera-withheld result ``z`` placed in the world of the view it was withheld from: the
+    similarity (:func:`registration`) and what params.json records of it (the placed pose, the
+    photo's own, the camera's errors)."""
+    estimate = problem.decode(z)
+    place = registration(estimate["camera"], given.c2w[0])
+    return place, {"pose": placed_pose(estimate["pose"], place), "photo_pose": estimate["pose"],
+                   "camera_error": camera_errors(estimate["camera"], given.c2w[0], given.fov_x)}

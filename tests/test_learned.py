@@ -46,6 +46,28 @@ def test_targets_rebuild_the_sample_exactly(name):
         np.testing.assert_allclose(mesh.vertices, sample.vertices, atol=1e-5)
 
 
+def test_a_photo_proposal_is_the_known_camera_one_at_the_render_camera():
+    """With the camera genes at the render camera's, an unknown camera's problem places a proposal
+    exactly where a known camera there would: the camera-hidden proposals share the known ones' map."""
+    from ipm.learned.propose import start_z
+    from ipm.photo import at_proposed_camera, c2w, unknown_camera_views
+
+    gen = get_generator("dishes")
+    mask = np.zeros((64, 64), np.float32)
+    mask[30:56, 24:40] = 1
+    pitch, fov = np.radians(25.0), np.radians(45.0)
+    known = Views(fov_x=fov, width=64, height=64, c2w=c2w(pitch)[None], masks=mask[None])
+    photo = at_proposed_camera(unknown_camera_views(known, fov_known=False), pitch, fov)
+    assert photo.camera.pitch0 == pytest.approx(pitch) and photo.fov_x == pytest.approx(fov)
+    a, b = Problem.for_views(gen, known), Problem.for_views(gen, photo)
+    u, pose = gen.spec.to_unit(gen.presets["mug"]), np.array([0.05, -0.1, 0.2])
+    za, zb = start_z(a, u, 0.3, pose, known.c2w[0]), start_z(b, u, 0.3, pose, photo.c2w[0])
+    assert len(zb) == len(za) + 3
+    np.testing.assert_allclose(a.world_mesh(za, 1).vertices, b.world_mesh(zb, 1).vertices, atol=1e-5)
+    given_fov = at_proposed_camera(unknown_camera_views(known, fov_known=True), pitch, 1.2)
+    assert given_fov.fov_x == pytest.approx(fov)  # a field of view the photo came with is kept
+
+
 def test_class_masks_lie_inside_the_silhouette():
     gen = get_generator("buildings")
     sample = draw_sample(gen, np.random.default_rng(3))
@@ -118,8 +140,42 @@ def test_weights_round_trip_and_bad_files_fail_clearly(trained, tmp_path):
         load(tmp_path / "missing.json")
 
 
+@pytest.fixture(scope="module")
+def cup_view(tmp_path_factory, mitsuba_cpu):
+    """cup_1's input view, small."""
+    from ipm.synth import synthesize
+
+    out = tmp_path_factory.mktemp("cup")
+    synthesize("cup_1", out, n_views=1, res=64, spp=4, progress=False)
+    return out / "transforms.json"
+
+
 @pytest.mark.slow
-def test_the_learned_row_and_start(trained, tmp_path, mitsuba_cpu):
+def test_the_camera_hidden_variant_proposes_the_camera_of_a_photo(cup_view, tmp_path):
+    """Trained with the camera hidden, the regressor's pitch beats the mean prediction's on held-out
+    samples; its row withholds the view's camera, proposes one and is placed to be scored."""
+    from ipm.learned.network import save
+    from ipm.learned.propose import load_regressor
+    from ipm.learned.train import TrainSettings, fit
+    from ipm.methods.learned import run_learned_photo
+
+    settings = TrainSettings(samples=320, held_out=80, steps=300, batch=32, learning_rate=2e-3)
+    model, meta = fit(get_generator("dishes"), settings, seed=0, camera_hidden=True)
+    assert meta["camera_hidden"] and len(meta["pose_mean"]) == 5
+    assert meta["held_out"]["pitch_error_deg"] < meta["mean_prediction"]["pitch_error_deg"]
+    path = tmp_path / "dishes_photo.json"
+    save(model, path, meta)
+    info = run_learned_photo(cup_view, tmp_path / "out", generator="dishes", profile="smoke", prepared=path,
+                             progress=False)
+    assert info["method"] == "learned_photo" and info["weights"] == "dishes_photo.json"
+    assert set(info["camera_error"]) == {"pitch_deg", "roll_deg", "fov_rel"} and info["camera"]["roll_deg"] == 0.0
+    assert (tmp_path / "out" / "mesh.ply").is_file()
+    with pytest.raises(UserError, match="holds the camera-hidden regressor, not the known-camera one"):
+        load_regressor("dishes", path)
+
+
+@pytest.mark.slow
+def test_the_learned_row_and_start(trained, cup_view, tmp_path):
     """The learned row writes a reconstruction like any other; the learned start puts its proposals
     first in the memetic population."""
     from ipm.io import load_views
@@ -129,15 +185,12 @@ def test_the_learned_row_and_start(trained, tmp_path, mitsuba_cpu):
     from ipm.learned.propose import has_weights
     from ipm.photo import unknown_camera_views
     from ipm.search.starts import learned_start, preset_start, start_for
-    from ipm.synth import synthesize
 
     _, _, path = trained
-    synthesize("cup_1", tmp_path / "cup", n_views=1, res=64, spp=4, progress=False)
-    info = run_learned(tmp_path / "cup" / "transforms.json", tmp_path / "out", generator="dishes",
-                       profile="smoke", prepared=path, progress=False)
+    info = run_learned(cup_view, tmp_path / "out", generator="dishes", profile="smoke", prepared=path, progress=False)
     assert {"mesh.ply", "mesh.glb", "params.json", "timing.json"} <= {p.name for p in (tmp_path / "out").iterdir()}
     assert info["method"] == "learned" and info["generator"] == "dishes"
-    views = load_views(tmp_path / "cup" / "transforms.json")
+    views = load_views(cup_view)
     problem = Problem.for_views(get_generator("dishes"), views)
     zs = propose(problem, views, k=2, prepared=path)
     assert len(zs) == 2 and all(np.all(np.isfinite(z)) for z in zs)

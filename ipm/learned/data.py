@@ -26,12 +26,16 @@ CROP_MARGIN = 1.15
 """The crop's side over the mask's larger bounding-box side."""
 ELEVATIONS = (5.0, 45.0)
 """Camera elevations of the training views (degrees): the cases' 10-35 and some room either side."""
+PHOTO_ELEVATIONS = (2.0, 60.0)
+"""Camera elevations of the camera-hidden variant's views (degrees): a photo's, level to steeply
+above (``ipm.photo.PITCH_PRIOR``)."""
 FOV_DEFAULT_SHARE = 0.5
 """Share of training views at the benchmark's lens (``ipm.synth.FOV_X``); the rest draw theirs
 from ``ipm.cases.FOV_RANGE``, as photos have them."""
 N_COND = 6
 """Camera numbers beside the image: elevation, tan(fov / 2), crop centre (x, y) and side in
-tangent units, and whether the class mask was given."""
+tangent units, and whether the class mask was given. With the camera hidden (a photo's),
+elevation and lens are 0 and the tangent units those of :data:`ipm.photo.DEFAULT_FOV`."""
 
 
 @dataclass
@@ -60,10 +64,10 @@ def sample_lod(gen) -> int:
     return max(1, gen.min_fit_lod)
 
 
-def draw_sample(gen, rng: np.random.Generator, res: int = RENDER_RES) -> Sample:
+def draw_sample(gen, rng: np.random.Generator, res: int = RENDER_RES, elevations=ELEVATIONS) -> Sample:
     """A random object of ``gen``'s family (``Generator.sample``) at a random pose (as the test cases:
     any yaw, offsets up to 0.1, scale 0.85-1.15) seen from a random orbit camera (any azimuth,
-    elevation in :data:`ELEVATIONS`, lens the benchmark's or a photo's), framed as the cases are."""
+    elevation in ``elevations`` (degrees), lens the benchmark's or a photo's), framed as the cases are."""
     from ipm.cases import FOV_RANGE
     from ipm.pose import yaw_matrix
     from ipm.synth import FOV_X, view_cameras
@@ -72,7 +76,7 @@ def draw_sample(gen, rng: np.random.Generator, res: int = RENDER_RES) -> Sample:
     yaw = float(rng.uniform(0.0, 2 * np.pi))
     translation = np.array([rng.uniform(-0.1, 0.1), 0.0, rng.uniform(-0.1, 0.1)])
     scale = float(rng.uniform(0.85, 1.15))
-    azimuth, elevation = float(rng.uniform(-180.0, 180.0)), float(rng.uniform(*ELEVATIONS))
+    azimuth, elevation = float(rng.uniform(-180.0, 180.0)), float(rng.uniform(*elevations))
     if rng.random() < FOV_DEFAULT_SHARE:
         fov = FOV_X
     else:
@@ -136,10 +140,11 @@ def _resample(image: np.ndarray, cx: float, cy: float, side: float, res: int) ->
     return out.reshape(res, k, res, k).mean((1, 3)).astype(np.float32)
 
 
-def encode_view(mask: np.ndarray, c2w: np.ndarray, fov_x: float, class_mask: np.ndarray | None = None,
+def encode_view(mask: np.ndarray, c2w: np.ndarray | None, fov_x: float | None, class_mask: np.ndarray | None = None,
                 n_channels: int = 1, res: int = NET_RES) -> tuple[np.ndarray, np.ndarray]:
     """The network's input for one view: the image (n_channels, res, res), the mask and, for a
-    generator with a class mask, that mask (zeros where not given), and the camera numbers (N_COND,)."""
+    generator with a class mask, that mask (zeros where not given), and the camera numbers (N_COND,;
+    ``c2w`` and ``fov_x`` None: the camera hidden, :data:`N_COND`)."""
     h, w = mask.shape
     cx, cy, side = crop_box(mask)
     image = np.zeros((n_channels, res, res), np.float32)
@@ -147,19 +152,28 @@ def encode_view(mask: np.ndarray, c2w: np.ndarray, fov_x: float, class_mask: np.
     given = class_mask is not None and n_channels > 1
     if given:
         image[1] = _resample(class_mask.astype(np.float32), cx, cy, side, res)
-    f = 0.5 * w / np.tan(0.5 * fov_x)
-    elevation = float(np.arcsin(np.clip(np.asarray(c2w)[1, 2], -1.0, 1.0)))
-    cond = np.array([elevation, np.tan(0.5 * fov_x), (cx - 0.5 * w) / f, (cy - 0.5 * h) / f, side / f, float(given)],
-                    np.float32)
+    if c2w is None:
+        from ipm.photo import DEFAULT_FOV
+
+        f, elevation, lens = 0.5 * w / np.tan(0.5 * DEFAULT_FOV), 0.0, 0.0
+    else:
+        f, elevation, lens = 0.5 * w / np.tan(0.5 * fov_x), camera_pitch(c2w), np.tan(0.5 * fov_x)
+    cond = np.array([elevation, lens, (cx - 0.5 * w) / f, (cy - 0.5 * h) / f, side / f, float(given)], np.float32)
     return image, cond
 
 
-def targets(gen, sample: Sample) -> dict:
+def camera_pitch(c2w: np.ndarray) -> float:
+    """How far the camera looks below the horizon (radians; ``ipm.photo``'s pitch)."""
+    return float(np.arcsin(np.clip(np.asarray(c2w)[1, 2], -1.0, 1.0)))
+
+
+def targets(gen, sample: Sample, camera_hidden: bool = False) -> dict:
     """What the network learns of a sample, in the search's coordinates: unit parameters, which of
     them shape it, the discrete values' class indices, the yaw relative to the camera's azimuth (as
     a unit vector, and whether it matters), and the offsets from the anchor (in the camera's
     horizontal frame, over the anchor's height) with the log of the object's height over the
-    anchor's (the scale then follows from the parameters, as ``Problem.initial_z`` sets it)."""
+    anchor's (the scale then follows from the parameters, as ``Problem.initial_z`` sets it); with
+    ``camera_hidden`` the camera's pitch and log tan(fov / 2) after them."""
     from ipm.io.views import Views
     from ipm.pose import yaw_matrix
     from ipm.problem import Problem, estimate_anchor
@@ -178,14 +192,17 @@ def targets(gen, sample: Sample) -> dict:
             "levels": levels,
             "yaw": np.array([np.cos(rel_yaw), np.sin(rel_yaw)], np.float32),
             "yaw_on": np.float32(not gen.yaw_symmetric(sample.x)),
-            "pose": np.array([offset[0], offset[2], np.log(sample.scale * height / anchor_s)], np.float32)}
+            "pose": np.array([offset[0], offset[2], np.log(sample.scale * height / anchor_s)]
+                             + ([camera_pitch(sample.c2w), np.log(np.tan(0.5 * sample.fov_x))] if camera_hidden else []),
+                             np.float32)}
 
 
-def make_dataset(gen, n: int, seed: int, progress: bool = False) -> dict:
+def make_dataset(gen, n: int, seed: int, progress: bool = False, camera_hidden: bool = False) -> dict:
     """``n`` samples of ``gen`` (:func:`draw_sample` from seeds spawned off ``TRAIN_SEED_BASE + seed``)
     as arrays: ``image`` (n, C, NET_RES, NET_RES) with C = 2 for a generator with a class mask (given
     for three samples in four, so the network also reads views without one), ``cond``, and the
-    :func:`targets` stacked."""
+    :func:`targets` stacked; ``camera_hidden``: a photo's views (:data:`PHOTO_ELEVATIONS`, no
+    camera numbers, the camera among the targets)."""
     from tqdm import tqdm
 
     channels = 2 if gen.mask_class is not None else 1
@@ -193,8 +210,9 @@ def make_dataset(gen, n: int, seed: int, progress: bool = False) -> dict:
     for i, ss in enumerate(tqdm(np.random.SeedSequence(TRAIN_SEED_BASE + seed).spawn(n), desc=f"samples {gen.name}",
                                 disable=not progress, leave=False)):
         rng = np.random.default_rng(ss)
-        sample = draw_sample(gen, rng)
+        sample = draw_sample(gen, rng, elevations=PHOTO_ELEVATIONS if camera_hidden else ELEVATIONS)
         given = sample.class_mask if rng.random() < 0.75 else None
-        image, cond = encode_view(sample.mask, sample.c2w, sample.fov_x, given, channels)
-        rows.append({"image": image, "cond": cond, **targets(gen, sample)})
+        seen = (None, None) if camera_hidden else (sample.c2w, sample.fov_x)
+        image, cond = encode_view(sample.mask, *seen, given, channels)
+        rows.append({"image": image, "cond": cond, **targets(gen, sample, camera_hidden)})
     return {k: np.stack([r[k] for r in rows]) for k in rows[0]}

@@ -30,21 +30,24 @@ FORMAT = "ipm-learned-regressor/1"
 
 
 class Regressor(eqx.Module):
-    """Image (C, R, R) and camera numbers (N_COND,) -> (unit params, discrete logits, yaw, pose)."""
+    """Image (C, R, R) and camera numbers (N_COND,) -> (unit params, discrete logits, yaw, pose; the
+    pose with the camera's pitch and lens for the camera-hidden variant, ``n_pose`` 5)."""
 
     convs: list
     fc: list
     head: eqx.nn.Linear
     n_cont: int = eqx.field(static=True)
     levels: tuple = eqx.field(static=True)
+    n_pose: int = eqx.field(static=True)
 
-    def __init__(self, in_channels: int, res: int, n_cond: int, n_cont: int, levels: tuple[int, ...], key):
+    def __init__(self, in_channels: int, res: int, n_cond: int, n_cont: int, levels: tuple[int, ...], key,
+                 n_pose: int = 3):
         keys = jax.random.split(key, len(CHANNELS) + 3)
         self.convs = conv_stack(in_channels, keys[:len(CHANNELS)])
         flat = conv_features_size(res)
         self.fc = [eqx.nn.Linear(flat + n_cond, HIDDEN, key=keys[-3]), eqx.nn.Linear(HIDDEN, HIDDEN, key=keys[-2])]
-        self.n_cont, self.levels = n_cont, tuple(int(v) for v in levels)
-        self.head = eqx.nn.Linear(HIDDEN, n_cont + sum(self.levels) + 2 + 3, key=keys[-1])
+        self.n_cont, self.levels, self.n_pose = n_cont, tuple(int(v) for v in levels), int(n_pose)
+        self.head = eqx.nn.Linear(HIDDEN, n_cont + sum(self.levels) + 2 + self.n_pose, key=keys[-1])
 
     def __call__(self, image, cond):
         h = jnp.concatenate([conv_features(self.convs, image), cond])
@@ -53,9 +56,9 @@ class Regressor(eqx.Module):
         out = self.head(h)
         cont = jax.nn.sigmoid(out[: self.n_cont])
         logits = out[self.n_cont: self.n_cont + sum(self.levels)]
-        yaw = out[-5:-3]
+        yaw = out[-self.n_pose - 2: -self.n_pose]
         yaw = yaw / jnp.sqrt(jnp.sum(yaw**2) + 1e-6)
-        return cont, logits, yaw, out[-3:]
+        return cont, logits, yaw, out[-self.n_pose:]
 
 
 def conv_stack(in_channels: int, keys) -> list:
@@ -98,7 +101,8 @@ def load(path: str | Path, expect_generator: str | None = None) -> tuple[Regress
     """The model and its metadata from a file written by :func:`save` (``UserError`` for a missing
     or malformed file, or one made for another generator)."""
     return load_model(path, FORMAT, "a learned regressor's", lambda r: Regressor(
-        r["in_channels"], r["res"], r["n_cond"], r["n_cont"], tuple(r["levels"]), jax.random.PRNGKey(0)),
+        r["in_channels"], r["res"], r["n_cond"], r["n_cont"], tuple(r["levels"]), jax.random.PRNGKey(0),
+        len(r["pose_mean"])),
         expect_generator)
 
 

@@ -18,20 +18,26 @@ SHIPPED = Path(__file__).parent / "weights"
 """Folder of the weights shipped with the package, one file per generator."""
 
 
-def weights_path(generator: str, prepared: str | Path | None = None) -> Path:
+def shipped_path(generator: str, camera_hidden: bool = False) -> Path:
+    """The shipped weights' file of ``generator``'s regressor (``camera_hidden``: the photo variant's)."""
+    return SHIPPED / f"{generator}{'_photo' if camera_hidden else ''}.json"
+
+
+def weights_path(generator: str, prepared: str | Path | None = None, camera_hidden: bool = False) -> Path:
     """The weights to use: ``prepared`` if given, else the shipped file (``UserError`` if none)."""
     if prepared is not None:
         return Path(prepared)
-    path = SHIPPED / f"{generator}.json"
+    path = shipped_path(generator, camera_hidden)
     if not path.exists():
+        method = "learned_photo" if camera_hidden else "learned"
         raise UserError(f"no learned weights for {generator!r}: make them with "
-                        f"'ipm prepare --method learned --generator {generator} --out FILE' and pass --prepared FILE")
+                        f"'ipm prepare --method {method} --generator {generator} --out FILE' and pass --prepared FILE")
     return path
 
 
-def has_weights(generator: str, prepared: str | Path | None = None) -> bool:
+def has_weights(generator: str, prepared: str | Path | None = None, camera_hidden: bool = False) -> bool:
     """Whether :func:`weights_path` has weights for ``generator`` (``prepared``, else shipped)."""
-    return prepared is not None or (SHIPPED / f"{generator}.json").exists()
+    return prepared is not None or shipped_path(generator, camera_hidden).exists()
 
 
 @lru_cache(maxsize=4)
@@ -41,9 +47,26 @@ def _load(path: str, generator: str):
     return load(path, expect_generator=generator)
 
 
-def load_regressor(generator: str, prepared: str | Path | None = None):
-    """The regressor and its metadata for ``generator`` (kept in memory for the next call)."""
-    return _load(str(weights_path(generator, prepared)), generator)
+def load_regressor(generator: str, prepared: str | Path | None = None, camera_hidden: bool = False):
+    """The regressor and its metadata for ``generator`` (kept in memory for the next call);
+    ``camera_hidden``: the photo variant's (``UserError`` if the file holds the other variant)."""
+    path = weights_path(generator, prepared, camera_hidden)
+    model, meta = _load(str(path), generator)
+    if bool(meta.get("camera_hidden", False)) != camera_hidden:
+        want, has = ("camera-hidden", "known-camera") if camera_hidden else ("known-camera", "camera-hidden")
+        raise UserError(f"{path} holds the {has} regressor, not the {want} one (ipm prepare --method "
+                        f"{'learned_photo' if camera_hidden else 'learned'})")
+    spec = _spec(generator)
+    if meta["continuous"] != [n for n, d in zip(spec.names, spec.discrete) if not d] or \
+            meta["discrete"] != [n for n, d in zip(spec.names, spec.discrete) if d]:
+        raise UserError(f"the learned weights for {generator!r} were made for other parameters; make them again")
+    return model, meta
+
+
+def _spec(generator: str):
+    from ipm.generators import get_generator
+
+    return get_generator(generator).spec
 
 
 def discrete_choices(probs: list[np.ndarray], k: int) -> list[tuple[tuple[int, ...], float]]:
@@ -57,27 +80,37 @@ def discrete_choices(probs: list[np.ndarray], k: int) -> list[tuple[tuple[int, .
     return beam
 
 
-def propose(problem, views, k: int = 1, prepared: str | Path | None = None) -> list[np.ndarray]:
-    """Up to ``k`` starts ``z`` for ``problem`` from the first view, best first: the predicted
-    continuous parameters and pose with each of the ``k`` most probable joints of the discrete
-    parameters. Known cameras only (an unknown camera's genes are not proposed)."""
+def read_view(generator: str, views, prepared: str | Path | None = None, camera_hidden: bool = False) -> dict:
+    """The regressor's outputs for the first view of ``views`` (``predict``'s, for one), the pose
+    rows back in their units (``pose``); with ``camera_hidden`` the view's camera is not read."""
+    from ipm.generators import get_generator
     from ipm.learned.data import encode_view
     from ipm.learned.train import predict
     from ipm.search.objective import class_masks
 
-    if problem.camera is not None:
-        raise UserError("the learned proposal needs the view's camera")
-    gen = problem.generator
-    model, meta = load_regressor(gen.name, prepared)
-    spec = gen.spec
-    if meta["continuous"] != [n for n, d in zip(spec.names, spec.discrete) if not d] or \
-            meta["discrete"] != [n for n, d in zip(spec.names, spec.discrete) if d]:
-        raise UserError(f"the learned weights for {gen.name!r} were made for other parameters; make them again")
-    found = class_masks(gen, views)
-    image, cond = encode_view(views.masks[0], views.c2w[0], views.fov_x, None if found is None else found[0][0],
-                              meta["in_channels"])
+    model, meta = load_regressor(generator, prepared, camera_hidden)
+    found = class_masks(get_generator(generator), views)
+    seen = (None, None) if camera_hidden else (views.c2w[0], views.fov_x)
+    image, cond = encode_view(views.masks[0], *seen, None if found is None else found[0][0], meta["in_channels"])
     out = predict(model, image[None], cond[None])
-    pose = out["pose"][0] * np.asarray(meta["pose_std"]) + np.asarray(meta["pose_mean"])
+    return {**out, "pose": out["pose"][0] * np.asarray(meta["pose_std"]) + np.asarray(meta["pose_mean"])}
+
+
+def propose_camera(generator: str, views, prepared: str | Path | None = None) -> tuple[float, float]:
+    """The camera-hidden regressor's pitch (radians below the horizon) and horizontal field of view
+    (radians) for a photo's mask (the first of ``views``; its camera, if any, is not read)."""
+    pose = read_view(generator, views, prepared, camera_hidden=True)["pose"]
+    return float(pose[3]), float(2.0 * np.arctan(np.exp(pose[4])))
+
+
+def propose(problem, views, k: int = 1, prepared: str | Path | None = None) -> list[np.ndarray]:
+    """Up to ``k`` starts ``z`` for ``problem`` from the first view, best first: the predicted
+    continuous parameters and pose with each of the ``k`` most probable joints of the discrete
+    parameters. An unknown camera (a photo's) is read by the camera-hidden variant, its genes at
+    the render camera's (whose pitch and lens :func:`propose_camera` can have set)."""
+    gen = problem.generator
+    spec = gen.spec
+    out = read_view(gen.name, views, prepared, camera_hidden=problem.camera is not None)
     yaw = float(np.arctan2(out["yaw"][0, 1], out["yaw"][0, 0]))
     starts = []
     for levels, _ in discrete_choices([p[0] for p in out["probs"]], k):
@@ -85,7 +118,7 @@ def propose(problem, views, k: int = 1, prepared: str | Path | None = None) -> l
         u[~spec.discrete] = out["u"][0]
         x = spec.from_unit(u)
         x[spec.discrete] = spec.lower[spec.discrete] + np.asarray(levels, float)
-        starts.append(start_z(problem, spec.to_unit(spec.clip(x)), yaw, pose, views.c2w[0]))
+        starts.append(start_z(problem, spec.to_unit(spec.clip(x)), yaw, out["pose"][:3], views.c2w[0]))
     return starts
 
 
@@ -99,4 +132,6 @@ def start_z(problem, u: np.ndarray, relative_yaw: float, pose: np.ndarray, c2w: 
     azimuth = camera_azimuth(c2w)
     offset = yaw_matrix(azimuth) @ np.array([pose[0], 0.0, pose[1]])
     log_scale = pose[2] - np.log(problem.object_height(u))
-    return problem.clip(np.concatenate([u, [relative_yaw + azimuth, 0.0, 0.0, offset[0], 0.0, offset[2], log_scale]]))
+    genes = [] if problem.camera is None else [problem.camera.pitch0, 0.0, 0.0]  # the render camera: the anchor's
+    return problem.clip(np.concatenate([u, [relative_yaw + azimuth, 0.0, 0.0, offset[0], 0.0, offset[2], log_scale],
+                                        genes]))

@@ -108,7 +108,17 @@ def held_out_errors(model, data: dict, pose_mean: np.ndarray, pose_std: np.ndarr
     pose = out["pose"] * pose_std + pose_mean
     return {"param_mae": float(err), "discrete_accuracy": acc,
             "yaw_error_deg": float(np.median(yaw_err[on])) if on.any() else None,
-            "pose_mae": np.mean(np.abs(pose - data["pose"]), 0).round(4).tolist()}
+            "pose_mae": np.mean(np.abs(pose - data["pose"]), 0).round(4).tolist(), **camera_errors(pose, data["pose"])}
+
+
+def camera_errors(pose: np.ndarray, truth: np.ndarray) -> dict:
+    """The camera-hidden variant's median pitch error (degrees) and field-of-view error (relative,
+    horizontal) for predicted and true pose rows; nothing for the known-camera variant."""
+    if pose.shape[1] < 5:
+        return {}
+    fov = lambda p: 2 * np.arctan(np.exp(p[:, 4]))  # noqa: E731
+    return {"pitch_error_deg": float(np.median(np.degrees(np.abs(pose[:, 3] - truth[:, 3])))),
+            "fov_error_rel": float(np.median(np.abs(fov(pose) / fov(truth) - 1)))}
 
 
 def mean_prediction_errors(train: dict, data: dict) -> dict:
@@ -121,12 +131,16 @@ def mean_prediction_errors(train: dict, data: dict) -> dict:
     levels = train["levels"]
     acc = float(np.mean([np.mean(data["levels"][:, i] == np.bincount(levels[:, i]).argmax())
                          for i in range(levels.shape[1])])) if levels.shape[1] else 1.0
+    mean_pose = np.broadcast_to(train["pose"].mean(0), data["pose"].shape)
     return {"param_mae": float(err), "discrete_accuracy": acc, "yaw_error_deg": 90.0,
-            "pose_mae": np.mean(np.abs(train["pose"].mean(0) - data["pose"]), 0).round(4).tolist()}
+            "pose_mae": np.mean(np.abs(mean_pose - data["pose"]), 0).round(4).tolist(),
+            **camera_errors(mean_pose, data["pose"])}
 
 
-def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: dict | None = None):
-    """Train a regressor for generator ``gen``: returns the model and its metadata (for
+def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: dict | None = None,
+        camera_hidden: bool = False):
+    """Train a regressor for generator ``gen`` (``camera_hidden``: the photo variant, which proposes
+    the camera too, ``ipm.learned.data.make_dataset``): the model and its metadata (for
     :func:`ipm.learned.network.save`)."""
     import equinox as eqx
     import jax
@@ -139,7 +153,7 @@ def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: d
 
     t0 = time.perf_counter()
     if data is None:
-        data = make_dataset(gen, settings.samples + settings.held_out, seed, progress)
+        data = make_dataset(gen, settings.samples + settings.held_out, seed, progress, camera_hidden)
     n = settings.samples
     train = {k: v[:n] for k, v in data.items()}
     held = {k: v[n:] for k, v in data.items()}
@@ -148,7 +162,8 @@ def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: d
     spec = gen.spec
     levels = tuple(int(v) for v in (spec.upper - spec.lower + 1)[spec.discrete])
     key = jax.random.PRNGKey(seed)
-    model = Regressor(train["image"].shape[1], NET_RES, N_COND, int((~spec.discrete).sum()), levels, key)
+    model = Regressor(train["image"].shape[1], NET_RES, N_COND, int((~spec.discrete).sum()), levels, key,
+                      n_pose=train["pose"].shape[1])
     schedule = optax.cosine_decay_schedule(settings.learning_rate, settings.steps)
     opt = optax.adam(schedule)
     state = opt.init(eqx.filter(model, eqx.is_array))
@@ -172,7 +187,7 @@ def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: d
         if len(losses) % 100 == 0:
             bar.set_postfix(loss=f"{np.mean(losses[-100:]):.3f}")
     train_s = time.perf_counter() - t0 - sample_s
-    meta = {"generator": gen.name, "seed": seed, "settings": asdict(settings),
+    meta = {"generator": gen.name, "seed": seed, "settings": asdict(settings), "camera_hidden": camera_hidden,
             "in_channels": int(train["image"].shape[1]), "res": NET_RES, "n_cond": N_COND,
             "n_cont": int((~spec.discrete).sum()), "levels": list(levels),
             "continuous": [nm for nm, d in zip(spec.names, spec.discrete) if not d],
@@ -185,9 +200,11 @@ def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: d
     return model, meta
 
 
-def prepare(generator: str, out, profile: str = "default", seed: int = 0, progress: bool = False) -> dict:
+def prepare(generator: str, out, profile: str = "default", seed: int = 0, progress: bool = False,
+            camera_hidden: bool = False) -> dict:
     """The learned methods' preparation stage: train ``generator``'s regressor with ``profile``'s
-    budget (:data:`TRAIN_PROFILES`) from ``seed`` and write it to ``out``."""
+    budget (:data:`TRAIN_PROFILES`) from ``seed`` and write it to ``out`` (``camera_hidden``: the
+    photo variant, :func:`prepare_photo`)."""
     from ipm.generators import get_generator
     from ipm.learned.network import save
 
@@ -195,7 +212,13 @@ def prepare(generator: str, out, profile: str = "default", seed: int = 0, progre
     if not gen.differentiable:
         raise UserError(f"the learned regressor needs a generator with a parameter vector it can regress; "
                         f"{generator!r} is searched by the GA path")
-    model, meta = fit(gen, train_settings(profile), seed, progress)
+    model, meta = fit(gen, train_settings(profile), seed, progress, camera_hidden=camera_hidden)
     save(model, out, meta)
     return {"seconds": meta["sample_seconds"] + meta["train_seconds"],
             **{k: v for k, v in meta.items() if k in ("held_out", "mean_prediction", "sample_seconds", "train_seconds")}}
+
+
+def prepare_photo(generator: str, out, profile: str = "default", seed: int = 0, progress: bool = False) -> dict:
+    """The preparation stage of the camera-hidden variant (a photo's: its pitch and field of view
+    proposed too, ``ipm prepare --method learned_photo``)."""
+    return prepare(generator, out, profile, seed, progress, camera_hidden=True)

@@ -97,6 +97,8 @@ declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses
         prepare_entry="ipm.methods.ga:collect_generator_statistics")
 declare("learned", "learned regressor ({views})", "ipm.methods.learned:run_learned", **_DIFF,
         prepare_entry="ipm.learned.train:prepare")
+declare("learned_photo", "learned regressor (camera unknown, {views})", "ipm.methods.learned:run_learned_photo",
+        **_DIFF, scored_by="shape_iou", prepare_entry="ipm.learned.train:prepare_photo")
 declare("diffsdf", "diffSDF-style ({views})", "baselines.diffsdf:run_diffsdf", layout="hemi")
 declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visual_hull", layout="hemi", seeded=False)
 declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")

@@ -82,13 +82,18 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
            info: dict, seconds: float, place: np.ndarray | None = None) -> dict:
     """The fit's result folder (``ipm.methods.results``): its mesh at the output level of detail,
     moved first by ``place`` (4 x 4, a similarity) where given, and ``info`` with the decoded ``z``."""
-    mesh = problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod))
-    if place is not None:
-        mesh = replace(mesh, vertices=mesh.vertices @ place[:3, :3].T + place[:3, 3],
-                       normals=mesh.normals @ (place[:3, :3] / np.cbrt(np.linalg.det(place[:3, :3]))).T)
+    mesh = placed_mesh(problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod)), place)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
             "settings": prof.as_dict(), **info}
     return write_result(out, mesh, info, {"seconds": seconds}, trace)
+
+
+def placed_mesh(mesh, place: np.ndarray | None):
+    """``mesh`` moved by ``place`` (4 x 4, a similarity; None: as it is)."""
+    if place is None:
+        return mesh
+    return replace(mesh, vertices=mesh.vertices @ place[:3, :3].T + place[:3, 3],
+                   normals=mesh.normals @ (place[:3, :3] / np.cbrt(np.linalg.det(place[:3, :3]))).T)
 
 
 def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
@@ -110,18 +115,13 @@ def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes"
     only afterwards, to score it, the result is placed in the views' world by taking the estimated
     camera to the given one's position and heading, keeping the ground and the vertical
     (:func:`ipm.photo.registration`), and the camera's errors are recorded in params.json."""
-    from ipm.photo import DEFAULT_FOV, camera_errors, placed_pose, registration, unknown_camera_views
+    from ipm.photo import scored_placement, withheld
 
     t0 = time.perf_counter()
     given = open_views(views_path).first(1)
-    photo = unknown_camera_views(given if fov_given else replace(given, fov_x=DEFAULT_FOV), fov_known=fov_given)
-    problem, z, trace, prof = fit(photo, generator, profile, seed, progress, **overrides)
-    estimate = problem.decode(z)
-    place = registration(estimate["camera"], given.c2w[0])
-    info = {"method": "photo_fov" if fov_given else "photo", "profile": profile, "seed": seed,
-            "pose": placed_pose(estimate["pose"], place),
-            "photo_pose": estimate["pose"], "camera_error": camera_errors(estimate["camera"], given.c2w[0],
-                                                                           given.fov_x)}
+    problem, z, trace, prof = fit(withheld(given, fov_given), generator, profile, seed, progress, **overrides)
+    place, placed = scored_placement(problem, z, given)
+    info = {"method": "photo_fov" if fov_given else "photo", "profile": profile, "seed": seed, **placed}
     return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
 
 
