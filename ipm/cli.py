@@ -51,7 +51,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="use only the first N frames of transforms.json (default: all)")
     r.add_argument("--prepared", default=None,
                    help="the method's preparation file from ipm prepare (ga: gene statistics, default: made in "
-                        "the run; learned, and diff's learned start: the regressor, default: the shipped one)")
+                        "the run; learned, and diff's learned start: the regressor; learned_photo, and the learned start of a photo "
+                        "(camera unknown): its camera-hidden variant; default: the shipped ones)")
     r.add_argument("--start", default=None, choices=["presets", "learned"],
                    help="diff: the search's first population (learned, the default: the regressor's proposals "
                         "first where the camera is known; presets: the generator's presets)")
@@ -152,9 +153,7 @@ def _run(args) -> int:
         check_generator(args.method, args.generator)
         extra = {}
         if args.prepared is not None:
-            if args.method == "diff" and args.start == "presets":
-                raise UserError("--prepared holds the learned start's weights: not with --start presets")
-            if method.prepare is None and args.method != "diff":
+            if method.prepare is None and args.method not in ("diff", "photo", "photo_fov"):  # their learned starts
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
             if not Path(args.prepared).is_file():
                 raise UserError(f"--prepared: no such file {args.prepared}")
@@ -190,7 +189,8 @@ def _run(args) -> int:
             photo_sheet(args.image, os.path.join(args.out, "mesh.ply"), info["camera"],
                         os.path.join(args.out, "overview.png"))
             cam = info["camera"]
-            chosen = " (chosen from the grid)" if cam.get("fov_from_grid") else ""
+            chosen = " (chosen from the grid)" if cam.get("fov_from_grid") else \
+                " (proposed by the learned regressor)" if cam.get("proposed") and not cam.get("fov_given") else ""
             print(f"{args.out}: camera pitch {cam['pitch_deg']:.1f} deg, roll {cam['roll_deg']:.1f} deg, "
                   f"field of view {cam['fov_x_deg']:.1f} deg{chosen}; figure in overview.png")
     elif args.command == "prepare":

@@ -85,6 +85,9 @@ class UnknownCamera:
     fov_chosen: bool = False
     """Whether the held field of view was chosen by the fit from a grid (``CameraSettings.fov_grid``
     in ``ipm.search.moves.camera``) rather than given."""
+    proposed: bool = False
+    """Whether the render camera's pitch, and its field of view unless given (then held), were
+    proposed by the camera-hidden regressor (``ipm.learned.propose.propose_camera``)."""
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the camera genes."""
@@ -137,7 +140,8 @@ class UnknownCamera:
         pitch, roll, log_focal = (float(g) for g in genes)
         return {"pitch_deg": float(np.degrees(pitch)), "roll_deg": float(np.degrees(roll)),
                 "fov_x_deg": float(np.degrees(fov_of(log_focal, self.fov0))),
-                "fov_given": self.fov_known and not self.fov_chosen, "fov_from_grid": self.fov_chosen,
+                "fov_given": self.fov_known and not self.fov_chosen and not self.proposed,
+                "fov_from_grid": self.fov_chosen, "proposed": self.proposed,
                 "transform_matrix": c2w(pitch, roll).tolist()}
 
 
@@ -262,10 +266,11 @@ def withheld(given: Views, fov_given: bool = False) -> Views:
 
 def at_proposed_camera(photo: Views, pitch: float, fov: float) -> Views:
     """A photo's views (camera unknown) with the render camera moved to a proposed ``pitch`` and,
-    where the photo's field of view is not known, the proposed ``fov`` (radians; e.g.
+    where the photo's field of view is not known, held at the proposed ``fov`` (radians;
     ``ipm.learned.propose.propose_camera``)."""
-    known = photo.camera.fov_known
-    return unknown_camera_views(photo if known else replace(photo, fov_x=float(fov)), known, pitch0=pitch)
+    views = unknown_camera_views(photo if photo.camera.fov_known else replace(photo, fov_x=float(fov)), True,
+                                 pitch0=pitch)
+    return replace(views, camera=replace(views.camera, proposed=True))
 
 
 def scored_placement(problem, z: np.ndarray, given: Views) -> tuple[np.ndarray, dict]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ipm.errors import UserError
@@ -157,7 +158,12 @@ def test_the_camera_hidden_variant_proposes_the_camera_of_a_photo(cup_view, tmp_
     from ipm.learned.network import save
     from ipm.learned.propose import load_regressor
     from ipm.learned.train import TrainSettings, fit
+    from ipm.io import load_views
+    from ipm.methods.diff import run_photo
     from ipm.methods.learned import run_learned_photo
+    from ipm.photo import at_proposed_camera, withheld
+    from ipm.profiles import get_profile
+    from ipm.search.moves.camera import PitchStarts
 
     settings = TrainSettings(samples=320, held_out=80, steps=300, batch=32, learning_rate=2e-3)
     model, meta = fit(get_generator("dishes"), settings, seed=0, camera_hidden=True)
@@ -172,6 +178,17 @@ def test_the_camera_hidden_variant_proposes_the_camera_of_a_photo(cup_view, tmp_
     assert (tmp_path / "out" / "mesh.ply").is_file()
     with pytest.raises(UserError, match="holds the camera-hidden regressor, not the known-camera one"):
         load_regressor("dishes", path)
+    # the camera-withheld diff path started from the proposed camera: its proposals first, the field
+    # of view held at the proposal, no pitch starts
+    info = run_photo(cup_view, tmp_path / "fit", generator="dishes", profile="smoke", prepared=path, progress=False,
+                     camera_start="learned", pitch_starts=(10.0, 40.0))
+    assert info["camera"]["proposed"] and not info["camera"]["fov_given"]
+    trace = pd.read_csv(tmp_path / "fit" / "trace.csv")
+    assert (trace["origin"] == "learned").any()
+    problem = Problem.for_views(get_generator("dishes"), at_proposed_camera(withheld(load_views(cup_view)), 0.3, 0.8))
+    assert not PitchStarts().applies(problem, get_profile("default"))
+    assert PitchStarts().applies(Problem.for_views(get_generator("dishes"), withheld(load_views(cup_view), True)),
+                                 get_profile("default"))
 
 
 @pytest.mark.slow

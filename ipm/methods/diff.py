@@ -29,13 +29,20 @@ from ipm.search.trial import scorer
 
 def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, prepared=None, **overrides):
     """The diff path on ``views``: the problem, its best ``z``, the trace and the profile (for a
-    camera of unknown field of view and a ``fov_grid``, :func:`fit_fov_grid`). ``prepared``: the
-    learned start's weights (``ipm prepare --method learned``; default the shipped ones;
-    ``ipm.search.starts.start_for``)."""
+    camera of unknown field of view and a ``fov_grid``, :func:`fit_fov_grid`; for an unknown camera
+    and ``camera_start: learned``, from the proposed camera). ``prepared``: the learned start's
+    weights, the camera-hidden variant's for an unknown camera (``ipm prepare learned`` or
+    ``learned_photo``; default the shipped ones; ``ipm.search.starts.start_for``)."""
     check_generator("diff", generator)
     prof = get_profile(profile, **overrides)
-    if prof.of(CameraSettings).fov_grid and views.camera is not None and not views.camera.fov_known:
+    camera = prof.of(CameraSettings)
+    if camera.fov_grid and views.camera is not None and not views.camera.fov_known:
         return (*fit_fov_grid(views, generator, prof, seed, progress), prof)
+    if camera.camera_start == "learned" and views.camera is not None:
+        from ipm.learned.propose import propose_camera
+        from ipm.photo import at_proposed_camera
+
+        views = at_proposed_camera(views, *propose_camera(generator, views, prepared))
     problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.loop.max_tilt)
     start = start_for(problem, views, prof.loop.start, prof.loop.learned_proposals, prepared)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress, start=start)
@@ -109,7 +116,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
 
 def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
               seed: int = 0, progress: bool = True, n_input_views: int | None = 1, fov_given: bool = False,
-              **overrides) -> dict:
+              prepared=None, **overrides) -> dict:
     """The benchmark's camera-withheld row: the first view's mask alone, without its camera or field
     of view (with ``fov_given``, with its field of view), goes to the diff path (``ipm.photo``);
     only afterwards, to score it, the result is placed in the views' world by taking the estimated
@@ -119,14 +126,17 @@ def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes"
 
     t0 = time.perf_counter()
     given = open_views(views_path).first(1)
-    problem, z, trace, prof = fit(withheld(given, fov_given), generator, profile, seed, progress, **overrides)
+    problem, z, trace, prof = fit(withheld(given, fov_given), generator, profile, seed, progress, prepared,
+                                  **overrides)
     place, placed = scored_placement(problem, z, given)
     info = {"method": "photo_fov" if fov_given else "photo", "profile": profile, "seed": seed, **placed}
     return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
 
 
 def run_photo_fov(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
-                  seed: int = 0, progress: bool = True, n_input_views: int | None = 1, **overrides) -> dict:
+                  seed: int = 0, progress: bool = True, n_input_views: int | None = 1, prepared=None,
+                  **overrides) -> dict:
     """The camera-withheld row with the field of view given, as a photo's Exif gives it: pitch,
     roll, pose and shape estimated (:func:`run_photo`)."""
-    return run_photo(views_path, out, generator, profile, seed, progress, n_input_views, fov_given=True, **overrides)
+    return run_photo(views_path, out, generator, profile, seed, progress, n_input_views, fov_given=True,
+                     prepared=prepared, **overrides)

@@ -55,10 +55,13 @@ def learned_start(views, proposals: int = 4, prepared=None):
 
 def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=None):
     """The start of a fit of ``problem`` to ``views`` for the setting ``start``: ``learned`` is
-    :func:`learned_start` where the regressor applies (a known camera; weights for the generator,
-    ``prepared`` or shipped), else :func:`preset_start`, as ``presets`` is always."""
+    :func:`learned_start` where the regressor applies (a known camera, or an unknown one whose render
+    camera it proposed; weights for the generator, ``prepared`` or shipped), else
+    :func:`preset_start`, as ``presets`` is always."""
     from ipm.learned.propose import has_weights
 
-    if start == "learned" and problem.camera is None and has_weights(problem.generator.name, prepared):
+    hidden = problem.camera is not None
+    if start == "learned" and (not hidden or problem.camera.proposed) and \
+            has_weights(problem.generator.name, prepared, camera_hidden=hidden):
         return learned_start(views, proposals, prepared)
     return preset_start

@@ -150,14 +150,24 @@ def method_inputs(wildcards):
 
 def preparation(m):
     """The preparation stage a methods entry reads, by the name of the method that makes it: its
-    own method's, or the learned regressor's for the diff path started from its proposals (the
-    profile's ``start``, unless the entry's settings say ``start: presets``); None if it needs none."""
+    own method's; for the diff path started from the learned regressor's proposals (the profile's
+    ``start``, unless the entry's settings say ``start: presets``) the regressor's; for the
+    camera-withheld rows started from the proposed camera (``camera_start: learned``) its
+    camera-hidden variant's; None if it needs none."""
     from ipm.profiles import get_profile
+    from ipm.search.moves.camera import CameraSettings
 
     if METHODS[m["name"]].prepare is not None:
         return m["name"]
-    if m["name"] == "diff" and get_profile(config["profile"], **m.get("settings", {})).loop.start == "learned":
+    prof = get_profile(config["profile"], **m.get("settings", {}))
+    if m["name"] == "diff" and prof.loop.start == "learned":
         return "learned"
+    if (
+        m["name"] in ("photo", "photo_fov")
+        and prof.of(CameraSettings).camera_start == "learned"
+        and not prof.of(CameraSettings).fov_grid
+    ):
+        return "learned_photo"
     return None
 
 

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 
@@ -35,6 +35,12 @@ class CameraSettings(Settings):
     pitch_starts: tuple[Annotated[float, Range(-90.0, 90.0)], ...] = ()
     """For an unknown camera with a given field of view: the memetic stage is run again per pitch here (degrees),
     held there, the finalists drawn from all runs; (): the usual stage alone (docs/decisions.md, 'Pitch starts')."""
+    camera_start: Literal["prior", "learned"] = "prior"
+    """Where an unknown camera's search starts: the pitch prior's middle, spread over the prior, with
+    the given or default field of view (``prior``), or the camera-hidden regressor's proposed pitch
+    and field of view (this one held unless given), its proposals first in the population and no
+    pitch starts (``learned``; ``ipm.learned.propose.propose_camera``; docs/decisions.md,
+    'Learned camera')."""
     fov_grid: tuple[Annotated[float, FOV_DEG], ...] = ()
     """For an unknown field of view: a fit per value here (horizontal degrees) as if it were given, the lowest loss
     kept (``ipm.methods.diff.fit_fov_grid``); (): estimated in one fit (docs/decisions.md, 'Field-of-view grid')."""
@@ -117,12 +123,14 @@ class FocalSweep(Move):
 
 @register
 class PitchStarts(Move):
-    """For an unknown camera with a given field of view: a memetic run more per pitch start, held there."""
+    """For an unknown camera with a given field of view (not a proposed one): a memetic run more per
+    pitch start, held there."""
 
     name, phase, settings = "pitch starts", "memetic", CameraSettings
 
     def applies(self, problem, profile) -> bool:
-        return problem.fov_estimated is False and bool(profile.of(CameraSettings).pitch_starts)
+        return problem.fov_estimated is False and not problem.camera.proposed and \
+            bool(profile.of(CameraSettings).pitch_starts)
 
     def holds(self, problem, profile) -> list[dict[int, float]]:
         i = problem.camera_gene("pitch")
