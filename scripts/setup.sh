@@ -8,8 +8,9 @@ cd "$(dirname "$0")/.."
 # libgl/libgomp for open3d's and pycolmap's shared objects.
 # Node.js and npm run the Khronos glTF validator in the tests (tests/gltf) and install the report's
 # 3D viewer (reports/js); Chromium (headless) opens the report in its browser test; rsync
-# moves files for the storage plugin (jobs without a shared working directory).
-pkgs="libllvm19 libusb-1.0-0 libgomp1 libgl1 libegl1 chromium rsync"
+# moves files for the storage plugin (jobs without a shared working directory); SLURM's daemons,
+# clients and munge run the single-node cluster of scripts/slurm_local.sh (tests/test_slurm.py).
+pkgs="libllvm19 libusb-1.0-0 libgomp1 libgl1 libegl1 chromium rsync slurmctld slurmd slurm-client munge"
 command -v npm >/dev/null 2>&1 || pkgs="$pkgs nodejs npm"
 missing=""
 for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
