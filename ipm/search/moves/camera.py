@@ -35,7 +35,7 @@ class CameraSettings(Settings):
     pitch_starts: tuple[Annotated[float, Range(-90.0, 90.0)], ...] = ()
     """For an unknown camera with a given field of view: the memetic stage is run again per pitch here (degrees),
     held there, the finalists drawn from all runs; (): the usual stage alone (docs/decisions.md, 'Pitch starts')."""
-    camera_start: Literal["prior", "learned"] = "prior"
+    camera_start: Literal["prior", "learned"] = "learned"
     """Where an unknown camera's search starts: the pitch prior's middle, spread over the prior, with
     the given or default field of view (``prior``), or the camera-hidden regressor's proposed pitch
     and field of view (this one held unless given), its proposals first in the population and no
