@@ -4,7 +4,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from ipm.errors import UserError
@@ -159,13 +158,12 @@ def test_the_camera_hidden_variant_proposes_the_camera_of_a_photo(cup_view, tmp_
     from ipm.learned.propose import load_regressor
     from ipm.learned.train import TrainSettings, fit
     from ipm.io import load_views
-    from ipm.methods.diff import run_photo
     from ipm.methods.learned import run_learned_photo
     from ipm.photo import at_proposed_camera, withheld
     from ipm.profiles import get_profile
     from ipm.search.moves.camera import PitchStarts
 
-    settings = TrainSettings(samples=320, held_out=80, steps=300, batch=32, learning_rate=2e-3)
+    settings = TrainSettings(samples=240, held_out=60, steps=200, batch=32, learning_rate=2e-3)
     model, meta = fit(get_generator("dishes"), settings, seed=0, camera_hidden=True)
     assert meta["camera_hidden"] and len(meta["pose_mean"]) == 5
     assert meta["held_out"]["pitch_error_deg"] < meta["mean_prediction"]["pitch_error_deg"]
@@ -178,13 +176,8 @@ def test_the_camera_hidden_variant_proposes_the_camera_of_a_photo(cup_view, tmp_
     assert (tmp_path / "out" / "mesh.ply").is_file()
     with pytest.raises(UserError, match="holds the camera-hidden regressor, not the known-camera one"):
         load_regressor("dishes", path)
-    # the camera-withheld diff path started from the proposed camera: its proposals first, the field
-    # of view held at the proposal, no pitch starts
-    info = run_photo(cup_view, tmp_path / "fit", generator="dishes", profile="smoke", prepared=path, progress=False,
-                     camera_start="learned", pitch_starts=(10.0, 40.0))
-    assert info["camera"]["proposed"] and not info["camera"]["fov_given"]
-    trace = pd.read_csv(tmp_path / "fit" / "trace.csv")
-    assert (trace["origin"] == "learned").any()
+    # the camera-withheld diff path from a proposed camera (run with the shipped weights in
+    # tests/test_photo.py): no pitch starts there, as with a field of view given they run
     problem = Problem.for_views(get_generator("dishes"), at_proposed_camera(withheld(load_views(cup_view)), 0.3, 0.8))
     assert not PitchStarts().applies(problem, get_profile("default"))
     assert PitchStarts().applies(Problem.for_views(get_generator("dishes"), withheld(load_views(cup_view), True)),

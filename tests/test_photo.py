@@ -114,6 +114,7 @@ def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
     camera = json.loads((out / "params.json").read_text())["camera"]
     assert -20 <= camera["pitch_deg"] <= 85 and 15 <= camera["fov_x_deg"] <= 100 and not camera["fov_given"]
     assert np.asarray(camera["transform_matrix"]).shape == (4, 4) and (out / "mesh.glb").is_file()
+    assert camera["proposed"] and "(proposed by the learned regressor)" in res.stdout
     res = ipm("reconstruct", "--generator", "dishes", "--image", str(tiny_case / frame["file_path"]), "--out",
               str(tmp_path / "grid"), "--profile", "smoke", "--quiet", "--threads", "2", "--fov-grid", "35")
     assert res.returncode == 0, res.stderr
@@ -175,8 +176,9 @@ def test_a_camera_error_moves_a_perfect_shape_along_the_foot_ray():
 
 
 def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
-    """``photo``: view 0's mask without its camera; the result placed in the views' world for
-    scoring, with the camera's errors recorded."""
+    """``photo``: view 0's mask without its camera; the search from the learned camera's proposal
+    (the default ``camera_start``), the result placed in the views' world for scoring, with the
+    camera's errors recorded."""
     from ipm.methods import METHODS
     from ipm.photo import placed_pose, registration
 
@@ -185,7 +187,8 @@ def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
     assert set(info["camera_error"]) == {"pitch_deg", "roll_deg", "fov_rel"} and info["method"] == "photo"
     assert (tmp_path / "out" / "mesh.ply").is_file() and info["pose"] != info["photo_pose"]
     trace = (tmp_path / "out" / "trace.csv").read_text().splitlines()
-    assert len({row.split(",")[3] for row in trace if row.startswith("focal,")}) == 3  # the focal sweep's points
+    assert info["camera"]["proposed"] and any(row.split(",")[3] == "learned" for row in trace)
+    assert not any(row.startswith("focal,") for row in trace)  # the proposed field of view is held
     place = registration(info["camera"], load_views(tiny_case / "transforms.json").c2w[0])
     assert info["pose"] == placed_pose(info["photo_pose"], place)
 
@@ -210,7 +213,7 @@ def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, 
 
     monkeypatch.setattr(loop, "memetic", spy)
     METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes", profile="smoke",
-                         progress=False, pitch_starts=(10.0, 40.0))
+                         progress=False, pitch_starts=(10.0, 40.0), camera_start="prior")
     assert len(seen) == 3 and len(seen[0]) > 1 and seen[1:] == [[10.0], [40.0]]  # the free run first
 
 
@@ -227,11 +230,12 @@ def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
     runs, real = [], loop.memetic
     monkeypatch.setattr(loop, "memetic", lambda *a, **k: runs.append(1) or real(*a, **k))
     info = METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes",
-                                profile="smoke", progress=False, pitch_starts=(10.0, 30.0, 50.0))
+                                profile="smoke", progress=False, pitch_starts=(10.0, 30.0, 50.0), camera_start="prior")
     assert info["method"] == "photo_fov" and info["camera_error"]["fov_rel"] == pytest.approx(0.0, abs=1e-6)
     assert info["camera"]["fov_given"] and len(runs) == 4  # a free run and one per pitch start
     METHODS["photo"](tiny_case / "transforms.json", tmp_path / "bare", generator="dishes", profile="smoke",
-                     progress=False, pitch_starts=(10.0, 30.0, 50.0), focal_sweep=1, focal_steps=2)
+                     progress=False, pitch_starts=(10.0, 30.0, 50.0), focal_sweep=1, focal_steps=2,
+                     camera_start="prior")
     assert len(runs) == 5  # without the field of view: one memetic stage
     focal = pd.read_csv(tmp_path / "bare" / "trace.csv").query("stage == 'focal'")
     assert len(focal) and set(focal["res"]) == {get_profile("smoke").loop.refine_res[-1]}  # its steps' size too

@@ -1,4 +1,6 @@
 # Config validation and the helpers that turn the config into targets and parameters.
+import functools
+
 from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml", set_default=True)
@@ -154,16 +156,26 @@ def preparation(m):
     ``start``, unless the entry's settings say ``start: presets``) the regressor's; for the
     camera-withheld rows started from the proposed camera (``camera_start: learned``) its
     camera-hidden variant's; None if it needs none."""
+    import json
+
+    return _preparation(m["name"], json.dumps(m.get("settings", {}), sort_keys=True))
+
+
+@functools.lru_cache(maxsize=None)
+def _preparation(name, settings):
+    """:func:`preparation` of a method ``name`` with its settings as JSON (once per entry)."""
+    import json
+
     from ipm.profiles import get_profile
     from ipm.search.moves.camera import CameraSettings
 
-    if METHODS[m["name"]].prepare is not None:
-        return m["name"]
-    prof = get_profile(config["profile"], **m.get("settings", {}))
-    if m["name"] == "diff" and prof.loop.start == "learned":
+    if METHODS[name].prepare is not None:
+        return name
+    prof = get_profile(config["profile"], **json.loads(settings))
+    if name == "diff" and prof.loop.start == "learned":
         return "learned"
     if (
-        m["name"] in ("photo", "photo_fov")
+        name in ("photo", "photo_fov")
         and prof.of(CameraSettings).camera_start == "learned"
         and not prof.of(CameraSettings).fov_grid
     ):
