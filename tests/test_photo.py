@@ -194,45 +194,33 @@ def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
 
 
 @pytest.mark.slow
-def test_pitch_starts_run_one_memetic_stage_per_held_pitch(tmp_path, tiny_case, monkeypatch):
-    """With ``pitch_starts`` the memetic stage runs free, then once per pitch with the camera's pitch
-    held there (starts, steps and the last generation)."""
+def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
+    """``photo_fov``: view 0's mask with its field of view but not its camera; the field of view
+    stays the given one, and the memetic stage runs free, then once per pitch start with the
+    camera's pitch held there (starts, steps and the last generation; only when it is given)."""
+    import pandas as pd
+
     import ipm.search.loop as loop
     from ipm.generators import get_generator
     from ipm.methods import METHODS
     from ipm.problem import POSE_NAMES
+    from ipm.profiles import get_profile
 
     ip = len(get_generator("dishes").spec) + len(POSE_NAMES)  # the pitch gene
-    seen, real = [], loop.memetic
+    runs, real = [], loop.memetic
 
     def spy(initial, evaluate, clip, *args, **kwargs):
         out = real(initial, evaluate, clip, *args, **kwargs)
-        seen.append(sorted({round(float(np.degrees(i.z[ip])), 6) for i in initial}
+        runs.append(sorted({round(float(np.degrees(i.z[ip])), 6) for i in initial}
                            | {round(float(np.degrees(i.best_z[ip])), 6) for i in out}))
         return out
 
     monkeypatch.setattr(loop, "memetic", spy)
-    METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes", profile="smoke",
-                         progress=False, pitch_starts=(10.0, 40.0), camera_start="prior")
-    assert len(seen) == 3 and len(seen[0]) > 1 and seen[1:] == [[10.0], [40.0]]  # the free run first
-
-
-@pytest.mark.slow
-def test_the_field_of_view_given_row(tmp_path, tiny_case, monkeypatch):
-    """``photo_fov``: view 0's mask with its field of view but not its camera; the field of view
-    stays the given one, and the memetic stage runs once per pitch start (only when it is given)."""
-    import pandas as pd
-
-    import ipm.search.loop as loop
-    from ipm.methods import METHODS
-    from ipm.profiles import get_profile
-
-    runs, real = [], loop.memetic
-    monkeypatch.setattr(loop, "memetic", lambda *a, **k: runs.append(1) or real(*a, **k))
     info = METHODS["photo_fov"](tiny_case / "transforms.json", tmp_path / "out", generator="dishes",
                                 profile="smoke", progress=False, pitch_starts=(10.0, 30.0, 50.0), camera_start="prior")
     assert info["method"] == "photo_fov" and info["camera_error"]["fov_rel"] == pytest.approx(0.0, abs=1e-6)
     assert info["camera"]["fov_given"] and len(runs) == 4  # a free run and one per pitch start
+    assert len(runs[0]) > 1 and runs[1:] == [[10.0], [30.0], [50.0]]
     METHODS["photo"](tiny_case / "transforms.json", tmp_path / "bare", generator="dishes", profile="smoke",
                      progress=False, pitch_starts=(10.0, 30.0, 50.0), focal_sweep=1, focal_steps=2,
                      camera_start="prior")

@@ -175,14 +175,14 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet", "building_1"}
     assert set(table["case"]) == cases
     assert set(table["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "diffSDF-style (2 views)",
-                                   "ours (diff, 1 view) [presets]", "learned regressor (1 view)",
+                                   "learned regressor (1 view)",
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
                                    "convex hull (reference)", "bounding sphere (reference)",
                                    "true parameters, other seed (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    # diff: 3 cases x 2 seeds; its start from the presets, the learned row, GA, COLMAP: their cases; the
-    # reseeded truth: the one stochastic in-family case (tree_1); the rest: every case, once
-    assert len(table) == 6 + 1 + 1 + 2 + 1 + 1 + 4 * len(cases)
+    # diff: 3 cases x 2 seeds; the learned row, GA, COLMAP: their cases; the reseeded truth: the one
+    # stochastic in-family case (tree_1); the rest: every case, once
+    assert len(table) == 6 + 1 + 2 + 1 + 1 + 4 * len(cases)
     assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]
     assert set(diff["case"]) == {"cup_1", "cup_t2", "building_1"} and sorted(diff["seed"]) == [0, 0, 0, 1, 1, 1]
@@ -198,8 +198,7 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert table.loc[failed, "iou_mean"].isna().all()
     # parameter recovery: in-family cases of the generator the row fits, nowhere else
     has_rec = ok["param_err"].notna()
-    assert set(ok.loc[has_rec, "label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)",
-                                             "ours (diff, 1 view) [presets]", "learned regressor (1 view)"}
+    assert set(ok.loc[has_rec, "label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "learned regressor (1 view)"}
     assert (ok.loc[has_rec, "family"] == "in").all() and ok.loc[has_rec, "discrete_match"].between(0, 1).all()
     hull = table[table["label"] == "convex hull (reference)"]["iou_mean"]
     sphere = table[table["label"] == "bounding sphere (reference)"]["iou_mean"]
@@ -227,10 +226,9 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     # one regressor per generator, read by the learned row and the diff path's start alike
     assert (tmp_path / "results/prepare/learned/dishes/s0.json").is_file()
     assert (tmp_path / "results/prepare/learned/buildings/s0.json").is_file()
-    for row, start in (("diff_1v", "learned"), ("diff_1v_presets", "presets")):
-        fit = tmp_path / f"results/reconstruct/{row}/cup_1/s0"
-        assert json.loads((fit / "params.json").read_text())["settings"]["start"] == start
-        assert ("learned" in set(pd.read_csv(fit / "trace.csv")["origin"])) == (start == "learned")
+    fit = tmp_path / "results/reconstruct/diff_1v/cup_1/s0"
+    assert json.loads((fit / "params.json").read_text())["settings"]["start"] == "learned"
+    assert "learned" in set(pd.read_csv(fit / "trace.csv")["origin"])
     assert json.loads((tmp_path / "results/reconstruct/learned_1v/cup_1/s0/params.json").read_text())["method"] == "learned"
     assert (tmp_path / "logs/benchmark/reconstruct/diff_1v/cup_1/s0.tsv").is_file()
     wide = pd.read_csv(tmp_path / "results/table_iou.csv", index_col=0)
