@@ -169,6 +169,7 @@ def test_a_camera_error_moves_a_perfect_shape_along_the_foot_ray():
     assert size(moved, wrong, 1.1 * fov) == pytest.approx(size(pts, given, fov), rel=0.02)
 
 
+@pytest.mark.slow
 def test_the_camera_withheld_benchmark_row(tmp_path, tiny_case):
     """``photo``: view 0's mask without its camera; the search from the learned camera's proposal
     (the default ``camera_start``), the result placed in the views' world for scoring, with the
