@@ -39,10 +39,11 @@ def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, p
     if camera.fov_grid and views.camera is not None and not views.camera.fov_known:
         return (*fit_fov_grid(views, generator, prof, seed, progress), prof)
     if camera.camera_start == "learned" and views.camera is not None:
-        from ipm.learned.propose import propose_camera
+        from ipm.learned.propose import has_weights, propose_camera
         from ipm.photo import at_proposed_camera
 
-        views = at_proposed_camera(views, *propose_camera(generator, views, prepared))
+        if has_weights(generator, prepared, camera_hidden=True):  # else the prior, as start_for falls back
+            views = at_proposed_camera(views, *propose_camera(generator, views, prepared))
     problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.loop.max_tilt)
     start = start_for(problem, views, prof.loop.start, prof.loop.learned_proposals, prepared)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress, start=start)
