@@ -5,6 +5,7 @@ from the CLI or a test fixture, and never at import time of a library module.
 """
 from __future__ import annotations
 
+import ctypes
 import importlib.abc
 import importlib.util
 import os
@@ -40,7 +41,11 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
     cache = compile_cache_dir()
     if cache and "JAX_COMPILATION_CACHE_DIR" not in os.environ:
         os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
-        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+        # Small programs are kept too: a fit compiles about a hundred (the generator's vertices, the
+        # regressor, the renderer's) at 0.02-0.4 s each, 4-5 s of a cup's fit if each process
+        # compiled them again; not the quickest (eager array operations), whose writes kept a second
+        # core of a one-thread job busy (docs/decisions.md, 'Small programs kept').
+        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.02")
         # Jobs running side by side share the folder. JAX writes an entry in place and reads it
         # unlocked unless the cache has a size limit; with one it locks the folder (filelock)
         # around every read and write, so no process reads a half-written program.
@@ -50,6 +55,7 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
             sys.modules["jax"].config.update("jax_compilation_cache_dir", cache)
             sys.modules["jax"].config.update("jax_compilation_cache_max_size",
                                              int(os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"]))
+    keep_freed_memory()
     global _THREADS
     _THREADS = threads
     if "jax" in sys.modules:
@@ -62,6 +68,27 @@ def configure_threads(threads: int, device: str = "cpu") -> None:
 _THREADS: int | None = None
 CACHE_MAX_BYTES = 4 << 30
 """Size limit of JAX's persistent compilation cache (least recently used entries go first)."""
+
+
+KEEP_FREED_BYTES = 1 << 30
+"""glibc's mmap and trim thresholds set by :func:`keep_freed_memory`."""
+
+
+def keep_freed_memory() -> None:
+    """Have glibc keep the memory this process frees for its next allocations. XLA's CPU programs
+    allocate their buffers afresh at every call; by default glibc maps the large ones from the
+    system each time and gives freed heap tops back, so every loss evaluation paid page faults (a
+    warm cup's fit: 5.8 s of system time in 12.8 s, 0.9 s with this; docs/decisions.md, 'Freed
+    memory kept'). Not where the ``MALLOC_*`` variables choose otherwise, nor off glibc."""
+    if not sys.platform.startswith("linux") or any(k.startswith("MALLOC_") for k in os.environ):
+        return
+    try:
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):  # another C library (musl)
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    mallopt(m_mmap_threshold, KEEP_FREED_BYTES)
+    mallopt(m_trim_threshold, KEEP_FREED_BYTES)
 
 
 def compile_cache_dir() -> str | None:

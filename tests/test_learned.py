@@ -215,3 +215,38 @@ def test_the_learned_row_and_start(trained, cup_view, tmp_path):
     assert not has_weights("trees") and has_weights("dishes") and has_weights("trees", path)
     choices = discrete_choices([np.array([0.1, 0.9]), np.array([0.6, 0.3, 0.1])], 3)
     assert [c for c, _ in choices] == [(1, 0), (1, 1), (1, 2)]
+
+
+def test_the_memetic_stage_is_shorter_from_the_learned_start(tiny_case, monkeypatch):
+    """From a learned start the memetic stage runs ``learned_generations`` generations (at most the
+    profile's ``ga_iterations``); from the presets all of them."""
+    from ipm.io import load_views
+    from ipm.profiles import get_profile
+    from ipm.search import loop
+    from ipm.search.starts import preset_start
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def memetic(pop, objective, clip, key_of, n_shape, levels, settings, *rest, **kw):
+        seen.append(settings.ga_iterations)
+        raise Stop
+
+    def plain(problem, settings, rng, prepare=None):
+        return preset_start(problem, settings, rng)
+
+    def learned(problem, settings, rng, prepare=None):
+        return preset_start(problem, settings, rng)
+
+    learned.learned = True
+    monkeypatch.setattr(loop, "memetic", memetic)
+    views = load_views(tiny_case / "transforms.json").subset([0])
+    problem = Problem.for_views(get_generator("dishes"), views)
+    for profile, start in [(get_profile("default", ga_iterations=12), learned),
+                           (get_profile("default", ga_iterations=12, learned_generations=6), learned),
+                           (get_profile("default", ga_iterations=12), plain), (get_profile("smoke"), learned)]:
+        with pytest.raises(Stop):
+            loop.reconstruct(problem, views, profile, progress=False, start=start)
+    assert seen == [4, 6, 12, 2]

@@ -97,3 +97,35 @@ def test_a_crash_after_importing_pycolmap_is_reported_by_python(guarded):
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert res.returncode != 0
     assert ("Fatal Python error: Segmentation fault" in res.stderr) == guarded, res.stderr[-2000:]
+
+
+_FAULTS = """
+import resource, sys
+import numpy as np
+if sys.argv[1] == "keep":
+    from ipm.runtime import keep_freed_memory
+    keep_freed_memory()
+faults = []
+for _ in range(2):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    a = np.ones(8 << 20)
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+    del a
+print(*faults)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
+def test_freed_memory_is_kept_for_the_next_allocation():
+    """After ``keep_freed_memory`` a large buffer freed and allocated again (as XLA's programs do at
+    every call) costs no page faults; without it, or where a MALLOC_ variable chooses, it does."""
+    def again(mode: str, **env) -> float:
+        """The second allocation's page faults as a share of the first's."""
+        run = subprocess.run([sys.executable, "-c", _FAULTS, mode], capture_output=True, text=True,
+                             env={**{k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}, **env})
+        assert run.returncode == 0, run.stderr[-2000:]
+        first, second = map(int, run.stdout.split())
+        return second / first
+
+    assert again("keep") < 0.1
+    assert again("none") > 0.5 and again("keep", MALLOC_ARENA_MAX="2") > 0.5

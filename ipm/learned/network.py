@@ -123,12 +123,18 @@ def load_model(path: str | Path, fmt: str, what: str, skeleton: Callable[[dict],
     if expect_generator is not None and record.get("generator") != expect_generator:
         raise UserError(f"{path} holds weights for {record.get('generator')!r}, not {expect_generator!r}")
     try:
-        model = eqx.tree_deserialise_leaves(io.BytesIO(base64.b64decode(record["weights"], validate=True)),
-                                            _cast(skeleton(record), jnp.float16))
+        like = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, np.float16) if _floating(a) else a,
+                                      eqx.filter_eval_shape(skeleton, record))
+        model = eqx.tree_deserialise_leaves(io.BytesIO(base64.b64decode(record["weights"], validate=True)), like)
     except (KeyError, TypeError, ValueError, RuntimeError, EOFError, binascii.Error) as exc:
         raise UserError(f"malformed learned weights {path}: {type(exc).__name__}: {exc}") from None
     meta = {k: v for k, v in record.items() if k != "weights"}
-    return _cast(model, jnp.float32), meta
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a, np.float32)) if _floating(a) else a, model), meta
+
+
+def _floating(a) -> bool:
+    """Whether ``a`` is a floating-point array or array shape (the leaves saved as float16)."""
+    return hasattr(a, "shape") and hasattr(a, "dtype") and np.issubdtype(a.dtype, np.floating)
 
 
 def _cast(model: eqx.Module, dtype) -> eqx.Module:

@@ -8,7 +8,7 @@ camera (``ipm.search.moves``); the loop knows none of them by name.
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Annotated, Literal
 
 import numpy as np
@@ -50,6 +50,9 @@ class LoopSettings(Settings):
     learned_proposals: Annotated[int, at_least(1)] = 4
     """How many of the regressor's proposals (its most probable discrete joints) the learned start puts
     in the population."""
+    learned_generations: Annotated[int, at_least(1)] = 4
+    """The memetic stage's generations (at most ``ga_iterations``) when it starts from the learned
+    proposals, which start near the answer (docs/decisions.md, 'Memetic stage from the learned start')."""
     max_tilt: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Bound of the two tilt angles (radians); 0 holds the object upright, the scene convention.
     Raise it for objects that may lean (docs/decisions.md, 'Upright objects')."""
@@ -100,6 +103,8 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     per evaluation; at the end of each stage its ``iou`` column holds the input-view IoU of the
     stage's best, :func:`input_iou`). ``start`` makes the memetic stage's first population."""
     loop, mem = profile.loop, profile.memetic
+    if getattr(start, "learned", False):
+        mem = replace(mem, ga_iterations=min(mem.ga_iterations, loop.learned_generations))
     moves = [m for m in moves_for(problem) if m.applies(problem, profile)]
     phase = {p: [m for m in moves if m.phase == p] for p in PHASES}
     holds = [{}] + [h for m in phase["memetic"] for h in m.holds(problem, profile)]

@@ -50,6 +50,7 @@ def learned_start(views, proposals: int = 4, prepared=None):
             pop.append(Individual(z, problem.key(z), "learned", lr=settings.lr))
         return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
 
+    start.learned = True  # the loop's memetic stage is shorter from it (LoopSettings.learned_generations)
     return start
 
 
