@@ -139,5 +139,4 @@ def _floating(a) -> bool:
 
 def _cast(model: eqx.Module, dtype) -> eqx.Module:
     """The model with every floating-point array as ``dtype``."""
-    return jax.tree_util.tree_map(
-        lambda a: a.astype(dtype) if eqx.is_array(a) and jnp.issubdtype(a.dtype, jnp.floating) else a, model)
+    return jax.tree_util.tree_map(lambda a: a.astype(dtype) if _floating(a) else a, model)
