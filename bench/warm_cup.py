@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import subprocess
 import sys
 import tempfile
@@ -45,7 +44,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="results/bench/warm_cup.json")
     args = ap.parse_args()
-    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
 
     configure_threads(args.threads, "cpu")
     set_mitsuba_variant("cpu", args.threads)
@@ -68,7 +67,7 @@ def main() -> None:
         print(f"target: a warm cup within {TARGET_S:g} s on 2 threads: {'met' if met else 'NOT met'}")
     from ipm.io import write_json
 
-    write_json(args.out, {"machine": platform.processor() or platform.machine(), "threads": args.threads,
+    write_json(args.out, {"machine": machine_info(args.threads), "threads": args.threads,
                           "seed": args.seed, "cases": rows, "target_s": TARGET_S, "target_met": met})
 
 
