@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -29,7 +27,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/bench/baselines_speed.json")
     args = ap.parse_args()
 
-    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
 
     configure_threads(args.threads)
     set_mitsuba_variant("cpu", args.threads)
@@ -38,8 +36,7 @@ def main() -> None:
     from ipm.metrics import evaluate_meshes
     from ipm.synth import synthesize
 
-    record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
-              "threads": args.threads, "profile": args.profile, "runs": {}}
+    record = {"machine": machine_info(args.threads), "threads": args.threads, "profile": args.profile, "runs": {}}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for case in args.cases:

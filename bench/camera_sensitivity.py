@@ -13,8 +13,6 @@ and writes them as JSON. How to read a camera-withheld row's world IoU against t
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import tempfile
 from pathlib import Path
 
@@ -32,7 +30,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/bench/camera_sensitivity.json")
     args = ap.parse_args()
 
-    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
 
     configure_threads(args.threads)
     set_mitsuba_variant("cpu", args.threads)
@@ -46,8 +44,7 @@ def main() -> None:
 
     errors = [(p, 0.0) for p in args.pitch] + [(0.0, f) for f in args.fov]
     names = [f"pitch {p:+g} deg" if p else f"fov {f:+.0%}" for p, f in errors]
-    record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
-              "threads": args.threads, "input_res": args.input_res, "errors": names, "iou": {}}
+    record = {"machine": machine_info(args.threads), "threads": args.threads, "input_res": args.input_res, "errors": names, "iou": {}}
     print(f"{'case':14s}" + "".join(f"{n:>16s}" for n in names), flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for case in args.cases:

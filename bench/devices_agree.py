@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 from pathlib import Path
 
 RENDERERS = ("jax", "mitsuba")
@@ -79,7 +78,7 @@ def main() -> None:
     ap.add_argument("--against", type=Path, help="compare with numbers another machine wrote (npz)")
     args = ap.parse_args()
 
-    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
 
     configure_threads(args.threads, args.device)
     variant = set_mitsuba_variant(args.device, args.threads).variant()
@@ -87,7 +86,7 @@ def main() -> None:
     import numpy as np
 
     here = compute(args.case, args.widths, args.profile)
-    machine = {"machine": platform.platform(), "device": args.device, "jax_backend": jax.default_backend(),
+    machine = {"machine": machine_info(device=args.device), "device": args.device, "jax_backend": jax.default_backend(),
                "mitsuba_variant": variant}
     print(json.dumps(machine))
     if args.out:

@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
@@ -170,7 +168,7 @@ def main() -> None:
     global PROGRESS
     PROGRESS = not args.quiet
 
-    from ipm.runtime import configure_threads
+    from ipm.runtime import configure_threads, machine_info
 
     configure_threads(args.threads)
     from ipm.generators import get_generator
@@ -215,7 +213,7 @@ def run_seed(objective, settings, stats, stats_path, stats_cost, reference, opti
     out.mkdir(parents=True, exist_ok=True)
     summary = {"case": args.case, "profile": args.profile, "budget": args.budget + stats_cost,
                "ga_search_evaluations": args.budget, "statistics_evaluations": stats_cost, "seed": seed,
-               "statistics": shown_path(stats_path), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
+               "statistics": shown_path(stats_path), "machine": machine_info(args.threads),
                "threads": args.threads, "algorithms": {}}
     curves = {}
     for name in args.algorithms:

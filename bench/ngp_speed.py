@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -30,7 +29,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/bench/ngp_speed.json")
     args = ap.parse_args()
 
-    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
 
     configure_threads(args.threads)
     set_mitsuba_variant("cpu", args.threads)
@@ -38,9 +37,8 @@ def main() -> None:
     from ipm.metrics.evaluate import evaluate_files
     from ipm.synth import synthesize
 
-    record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
-              "load_average": os.getloadavg(), "threads": args.threads, "profile": args.profile,
-              "seed": args.seed, "runs": {}}
+    record = {"machine": machine_info(args.threads), "load_average": os.getloadavg(), "threads": args.threads,
+              "profile": args.profile, "seed": args.seed, "runs": {}}
     with tempfile.TemporaryDirectory() as tmp:
         synth = Path(args.synth) if args.synth else Path(tmp) / "synth"
         for case in args.cases:

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import tempfile
@@ -74,7 +73,7 @@ def main() -> None:
     if not args.compile_cache:
         os.environ["IPM_JAX_CACHE"] = "off"
 
-    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
 
     configure_threads(args.threads, args.device)
     set_mitsuba_variant(args.device, args.threads)
@@ -88,8 +87,7 @@ def main() -> None:
     from ipm.profiles import get_profile
     from ipm.synth import synthesize
 
-    record = {"machine": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
-              "gpu": gpu_name() if args.device == "cuda" else None,
+    record = {"machine": machine_info(args.threads), "gpu": gpu_name() if args.device == "cuda" else None,
               "device": args.device, "threads": args.threads, "profile": args.profile, "input_res": args.input_res,
               "compile_cache": args.compile_cache,
               "iteration_ms": {r: {} for r in args.renderers}, "population_ms": {r: {} for r in args.renderers},

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
@@ -39,7 +37,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/bench/tree_generator_speed.json")
     args = ap.parse_args()
 
-    from ipm.runtime import configure_threads
+    from ipm.runtime import configure_threads, machine_info
 
     configure_threads(args.threads)
     import numpy as np
@@ -71,8 +69,7 @@ def main() -> None:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({
-        "machine": {"platform": platform.platform(), "processor": platform.processor(), "cpus": os.cpu_count(),
-                    "threads": args.threads},
+        "machine": machine_info(args.threads),
         "presets": rows,
         "random_lowest_lod_ms": rand,
     }, indent=2))

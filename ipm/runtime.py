@@ -5,6 +5,7 @@ from the CLI or a test fixture, and never at import time of a library module.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import importlib.abc
 import importlib.util
@@ -266,22 +267,59 @@ def set_mitsuba_variant(device: str = "cpu", threads: int | None = None):
     return mi
 
 
+@contextlib.contextmanager
+def job_clock():
+    """Times the block: the yielded dict gets ``wall_seconds`` and ``cpu_seconds`` (user and system
+    time of this process's threads and of the children it waited for) when the block ends, so a
+    job's time on one kind of CPU can be compared with another's."""
+    import time
+
+    t0, c0 = time.perf_counter(), os.times()
+    out: dict = {}
+    yield out
+    c1 = os.times()
+    cpu = sum(getattr(c1, k) - getattr(c0, k) for k in ("user", "system", "children_user", "children_system"))
+    out.update(wall_seconds=round(time.perf_counter() - t0, 2), cpu_seconds=round(cpu, 2))
+
+
+def _cpuinfo() -> dict:
+    """The first processor's fields of /proc/cpuinfo (empty where there is none)."""
+    out = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if not line.strip():
+                break
+            key, _, value = line.partition(":")
+            out[key.strip()] = value.strip()
+    except OSError:
+        pass
+    return out
+
+
+def cpu_kind(flags: str | None = None) -> str:
+    """The kind of CPU a time was measured on, as docs/results.md ("Machines") names them: on
+    x86-64 "AVX-512" or "no AVX-512" (the two kinds of the project's 2-core machines: XLA's, Dr.Jit's
+    and BLAS's kernels differ between them), else the architecture; ``flags``: /proc/cpuinfo's."""
+    import platform
+
+    arch = platform.machine()
+    if flags is None:
+        flags = _cpuinfo().get("flags")
+    if arch not in ("x86_64", "AMD64") or flags is None:
+        return arch or "unknown"
+    return "AVX-512" if "avx512f" in flags.split() else "no AVX-512"
+
+
 def machine_info(threads: int | None = None, device: str = "cpu") -> dict:
-    """Where a job ran, for the report's provenance: host, CPU model and count, OS, the job's
-    threads and device (and the GPU's name when it is cuda)."""
+    """Where a job ran, for the report's provenance: host, CPU model, kind (:func:`cpu_kind`) and
+    count, OS, the job's threads and device (and the GPU's name when it is cuda)."""
     import platform
     import socket
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    info = {"host": socket.gethostname(), "cpu": cpu, "cpus": os.cpu_count(), "os": platform.platform(terse=True),
-            "threads": threads, "device": device}
+    info = _cpuinfo()
+    cpu = info.get("model name") or platform.processor() or platform.machine()
+    info = {"host": socket.gethostname(), "cpu": cpu, "kind": cpu_kind(info.get("flags")), "cpus": os.cpu_count(),
+            "os": platform.platform(terse=True), "threads": threads, "device": device}
     if device == "cuda":
         import jax
 
@@ -291,7 +329,8 @@ def machine_info(threads: int | None = None, device: str = "cpu") -> dict:
 
 def machine_line(info: dict) -> str:
     """One line of :func:`machine_info` for a table cell."""
-    parts = [info.get("host", "?"), info.get("cpu", "?"), f"{info.get('cpus', '?')} CPUs", info.get("os", "?")]
+    cpu = info.get("cpu", "?") + (f" ({info['kind']})" if info.get("kind") else "")
+    parts = [info.get("host", "?"), cpu, f"{info.get('cpus', '?')} CPUs", info.get("os", "?")]
     if info.get("gpu"):
         parts.append(info["gpu"])
     return " · ".join(str(p) for p in parts)

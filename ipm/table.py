@@ -32,12 +32,12 @@ from ipm.metrics.recovery import CAMERA_COLUMNS, RECOVERY_COLUMNS
 COLUMNS = ["row", "label", "kind", "case", "split", "generator", "family", "seed", "iou_mean", "iou_min", "iou_std",
            "iou_above", "iou_below", "shape_iou", "align_yaw_deg", "align_shift", "align_scale", "viou",
            "recon_watertight", "chamfer_l2", "chamfer_l1", "n_triangles", "malformed_share", *RECOVERY_COLUMNS,
-           *CAMERA_COLUMNS, "seconds", "machine", "note"]
+           *CAMERA_COLUMNS, "seconds", "cpu_seconds", "machine", "note"]
 KINDS = ("baseline", "method", "reference")
 """Row kinds in table order: general-purpose baselines, ours, reference lines (as in the paper)."""
 SPREAD = ("iou_mean", "shape_iou", "viou")
 """Metrics summarised by mean, standard deviation and worst (lowest) over seeds."""
-MEANS = ("chamfer_l2", "chamfer_l1", "malformed_share", *RECOVERY_COLUMNS, *CAMERA_COLUMNS, "seconds")
+MEANS = ("chamfer_l2", "chamfer_l1", "malformed_share", *RECOVERY_COLUMNS, *CAMERA_COLUMNS, "seconds", "cpu_seconds")
 """Metrics summarised by their mean over seeds."""
 CLASS_NAMES = {"dishes": "cups", "trees": "trees", "buildings": "buildings"}
 """Table names of the classes, by the generator that reconstructs them."""

@@ -68,25 +68,27 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
     with _logged(log, threads, mitsuba=True, device=device):
         from ipm.io import write_json
         from ipm.methods import METHODS
-        from ipm.runtime import machine_info
+        from ipm.runtime import job_clock, machine_info
 
         fn = METHODS[method]
         extra = {"generator": generator} if fn.takes_generator else {}
         if prepared:
             extra["prepared"] = prepared
-        fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra,
-           **dict(settings or {}))
-        write_json(Path(mesh).parent / "machine.json", machine_info(threads, device))
+        with job_clock() as clock:
+            fn(transforms, Path(mesh).parent, profile=profile, seed=seed, n_input_views=n_input_views, **extra,
+               **dict(settings or {}))
+        write_json(Path(mesh).parent / "machine.json", {**machine_info(threads, device), **clock})
 
 
 def reference_line_step(name: str, reference: str, truth: str, mesh: str, threads: int = 1, log=None):
     with _logged(log, threads):
         from ipm.io import write_json
         from ipm.reference_lines import write_reference_line
-        from ipm.runtime import machine_info
+        from ipm.runtime import job_clock, machine_info
 
-        write_reference_line(name, reference, Path(mesh).parent, truth=truth)
-        write_json(Path(mesh).parent / "machine.json", machine_info(threads))
+        with job_clock() as clock:
+            write_reference_line(name, reference, Path(mesh).parent, truth=truth)
+        write_json(Path(mesh).parent / "machine.json", {**machine_info(threads), **clock})
 
 
 def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: str, row: dict, seed: int,
@@ -120,12 +122,13 @@ def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: s
 
             gallery_sheet(str(mesh), reference, gallery)
         seconds = json.loads(timing.read_text()).get("seconds")
-        machine = machine_line(json.loads((folder / "machine.json").read_text())) \
-            if (folder / "machine.json").exists() else "not recorded"
+        job = json.loads((folder / "machine.json").read_text()) if (folder / "machine.json").exists() else None
+        machine = machine_line(job) if job else "not recorded"
         note = f"failed: {info['failed']}" if info.get("failed") else info.get("note", "")
         write_json(Path(metrics).parent / "row.json", {**row, "split": case_split(case), "generator": case["generator"],
-                                                       "seed": seed, "seconds": seconds, "machine": machine,
-                                                       "note": note})
+                                                       "seed": seed, "seconds": seconds,
+                                                       "cpu_seconds": (job or {}).get("cpu_seconds"),
+                                                       "machine": machine, "note": note})
 
 
 def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, threads: int = 1, log=None):

@@ -313,7 +313,7 @@ def _run_card(g: pd.DataFrame, results: Path, models: bool) -> dict:
                 ("IoU", "iou_mean", "{:.3f}"), ("shape IoU", "shape_iou", "{:.3f}"), ("vIoU", "viou", "{:.3f}"),
                 ("Chamfer-L1", "chamfer_l1", "{:.4f}"), ("Chamfer-L2", "chamfer_l2", "{:.4f}"),
                 ("triangles", "n_triangles", "{:,.0f}"), ("malformed", "malformed_share", "{:.1%}"),
-                ("seconds", "seconds", "{:.1f}"))],
+                ("seconds", "seconds", "{:.1f}"), ("CPU seconds", "cpu_seconds", "{:.1f}"))],
             "machine": first["machine"] if isinstance(first.get("machine"), str) else "not recorded",
             "gallery": _png(folder / "gallery.png"), "preview": _png(folder / "preview.png"),
             "parts": _png(folder / "parts.png") or _png(recon / "parts.png"), "trace": None, "pose": "",

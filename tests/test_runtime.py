@@ -129,3 +129,42 @@ def test_freed_memory_is_kept_for_the_next_allocation():
 
     assert again("keep") < 0.1
     assert again("none") > 0.5 and again("keep", MALLOC_ARENA_MAX="2") > 0.5
+
+
+def test_the_cpu_kind_is_read_from_the_flags():
+    """Every recorded time names the kind of CPU it came from (docs/results.md, "Machines")."""
+    import platform
+
+    from ipm.runtime import cpu_kind, machine_info, machine_line
+
+    if platform.machine() == "x86_64":
+        assert cpu_kind("fpu sse2 avx2 avx512f avx512bw") == "AVX-512"
+        assert cpu_kind("fpu sse2 avx2 fma") == "no AVX-512"
+    info = machine_info(1)
+    assert info["kind"] == cpu_kind() and f"({info['kind']})" in machine_line(info)
+
+
+def test_the_job_clock_counts_the_cpu_time_of_every_thread():
+    """A job's CPU seconds beside its wall seconds: two threads that each burn 0.3 s of their own
+    CPU time count 0.6 s however the cores are shared (the GIL is released while hashing), a sleep
+    next to nothing."""
+    import hashlib
+    import threading
+
+    from ipm.runtime import job_clock
+
+    def burn():
+        start = time.thread_time()
+        while time.thread_time() - start < 0.3:
+            hashlib.sha256(b"x" * 100_000).digest()
+
+    with job_clock() as clock:
+        time.sleep(0.3)
+    assert clock["wall_seconds"] >= 0.3 and clock["cpu_seconds"] < 0.1
+    with job_clock() as clock:
+        threads = [threading.Thread(target=burn) for _ in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert 0.6 <= clock["cpu_seconds"] < 1.0, clock

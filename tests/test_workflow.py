@@ -80,6 +80,24 @@ def test_config_cases_narrow_every_row(tmp_path):
     assert "ga_1v" not in out  # the GA row lists only trees
 
 
+def test_the_default_config_reads_the_shipped_preparations(tmp_path):
+    """The default run trains nothing: its learned rows, the diff path's learned start and the GA
+    read the files the package ships (the same weights on every machine); the benchmark config
+    trains them in the run, and ``prepared: shipped`` with another profile's budgets is refused."""
+    from ipm.methods import METHODS
+
+    res = snakemake("-n", "--cores", "1", "--configfile", str(ROOT / "pipelines/config/default.yaml"),
+                    "--directory", str(tmp_path))
+    out = res.stdout + res.stderr
+    assert res.returncode == 0, out[-3000:]
+    assert "rule prepare:" not in out
+    for stage, generator in (("learned", "dishes"), ("learned", "buildings"), ("occnet", "dishes"),
+                             ("occnet", "buildings"), ("ga", "trees")):
+        assert str(METHODS[stage].shipped_file(generator)) in out, (stage, generator)
+    rc, out = dry_run(tmp_path, "profile: smoke\nprepared: shipped\ncases: [cup_1]\n")
+    assert rc != 0 and "prepared: shipped are the default profile's preparations" in out
+
+
 @pytest.mark.parametrize("profile", ["slurm", "kubernetes"])
 def test_cluster_profiles_dry_run(profile, tmp_path):
     """The executor profiles plan the default DAG: SLURM on a shared filesystem, Kubernetes with

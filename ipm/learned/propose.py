@@ -2,7 +2,7 @@
 
 Weights come from the workflow's preparation stage (``prepared``) or, where none is given, from
 the set shipped with the package (``ipm/learned/weights/GENERATOR.json``, made by the same
-code: ``python -m ipm.learned.ship``).
+code: ``python -m ipm.ship``).
 """
 from __future__ import annotations
 
@@ -14,13 +14,11 @@ import numpy as np
 
 from ipm.errors import UserError
 
-SHIPPED = Path(__file__).parent / "weights"
-"""Folder of the weights shipped with the package, one file per generator."""
-
-
 def shipped_path(generator: str, camera_hidden: bool = False) -> Path:
     """The shipped weights' file of ``generator``'s regressor (``camera_hidden``: the photo variant's)."""
-    return SHIPPED / f"{generator}{'_photo' if camera_hidden else ''}.json"
+    from ipm.methods import METHODS
+
+    return METHODS["learned_photo" if camera_hidden else "learned"].shipped_path(generator)
 
 
 def weights_path(generator: str, prepared: str | Path | None = None, camera_hidden: bool = False) -> Path:

@@ -14,7 +14,9 @@ reads as ``prepared=`` (the GA's gene statistics). Adding one: its module, and a
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 from ipm.registry import Registry
@@ -44,6 +46,9 @@ class Method:
     prepare_entry: str | None = None
     """``module:function`` writing a file per generator and seed (a cached pipeline stage),
     ``prepare(generator, out_path, profile=, seed=, progress=)``; the method takes it as ``prepared=``."""
+    shipped: str | None = None
+    """``package:path`` of the preparation's file shipped with the package for a generator
+    (``{generator}`` in the path): the default profile's, seed 0, made by ``python -m ipm.ship``."""
     seeded: bool = True
     """False for a method without random choices: the pipeline runs it once per case, not per seed."""
     scored_by: str = "iou_mean"
@@ -61,6 +66,20 @@ class Method:
     @property
     def prepare(self) -> Callable | None:
         return None if self.prepare_entry is None else resolve(self.prepare_entry)
+
+    def shipped_path(self, generator: str) -> Path | None:
+        """Where the shipped preparation of ``generator`` lies (whether or not it is there); None
+        for a method that ships none. Nothing is imported but the package's parents."""
+        if self.shipped is None:
+            return None
+        package, _, path = self.shipped.partition(":")
+        spec = importlib.util.find_spec(package)
+        return Path(list(spec.submodule_search_locations)[0]) / path.format(generator=generator)
+
+    def shipped_file(self, generator: str) -> Path | None:
+        """The shipped preparation of ``generator`` if the package has one, else None."""
+        path = self.shipped_path(generator)
+        return path if path is not None and path.is_file() else None
 
 
 METHODS: Registry[Method] = Registry("method")
@@ -94,15 +113,16 @@ declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_p
 declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_DIFF,
         scored_by="shape_iou")
 declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses_generator=True,
-        prepare_entry="ipm.methods.ga:collect_generator_statistics")
+        prepare_entry="ipm.methods.ga:collect_generator_statistics", shipped="ipm.methods:prepared/ga_{generator}.json")
 declare("learned", "learned regressor ({views})", "ipm.methods.learned:run_learned", **_DIFF,
-        prepare_entry="ipm.learned.train:prepare")
+        prepare_entry="ipm.learned.train:prepare", shipped="ipm.learned:weights/{generator}.json")
 declare("learned_photo", "learned regressor (camera unknown, {views})", "ipm.methods.learned:run_learned_photo",
-        **_DIFF, scored_by="shape_iou", prepare_entry="ipm.learned.train:prepare_photo")
+        **_DIFF, scored_by="shape_iou", prepare_entry="ipm.learned.train:prepare_photo",
+        shipped="ipm.learned:weights/{generator}_photo.json")
 declare("diffsdf", "diffSDF-style ({views})", "baselines.diffsdf:run_diffsdf", layout="hemi")
 declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visual_hull", layout="hemi", seeded=False)
 declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")
 declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")
 declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi")
 declare("occnet", "occupancy network ({views})", "baselines.occnet:run_occnet", layout="hemi",
-        learns_generator=True, prepare_entry="baselines.occnet:prepare")
+        learns_generator=True, prepare_entry="baselines.occnet:prepare", shipped="baselines.occnet:weights/{generator}.json")

@@ -63,6 +63,11 @@ def check_methods():
 
     for case in config["cases"]:
         case_split(load_case(case))
+    if config["prepared"] == "shipped" and config["profile"] != "default":
+        raise ValueError(
+            f"config: prepared: shipped are the default profile's preparations; profile "
+            f"{config['profile']} trains its own (prepared: run)"
+        )
     ids = [row_id(m) for m in config["methods"]]
     for rid in ids:
         if ids.count(rid) > 1:
@@ -146,8 +151,23 @@ def method_inputs(wildcards):
     stage = preparation(m)
     if stage is not None:
         seed = wildcards.seed if config["prepare_seed"] is None else config["prepare_seed"]
-        out["prepared"] = f"results/prepare/{stage}/{case_generator(wildcards)}/s{seed}.json"
+        out["prepared"] = prepared_file(stage, case_generator(wildcards), seed)
     return out
+
+
+def prepared_file(stage, generator, seed):
+    """The preparation file of ``stage`` for ``generator``: with ``prepared: shipped`` the one the
+    package ships (the default profile's, seed 0; ``python -m ipm.ship``) where there is one, a
+    source file that no storage provider moves (relative to the working directory where it lies
+    inside); else the ``prepare`` rule's for ``seed``."""
+    from pathlib import Path
+
+    if config["prepared"] == "shipped":
+        path = METHODS[stage].shipped_file(generator)
+        if path is not None:
+            inside = path.resolve().is_relative_to(Path.cwd().resolve())
+            return local(str(path.resolve().relative_to(Path.cwd().resolve()) if inside else path))
+    return f"results/prepare/{stage}/{generator}/s{seed}.json"
 
 
 def preparation(m):
