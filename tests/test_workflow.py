@@ -37,6 +37,8 @@ def test_dry_run_plans_every_stage(config, tmp_path):
     for rule in ("reference", "synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report",
                  "report_check"):
         assert f"rule {rule}:" in res.stdout
+    # the trainings and the GA's statistics: made in the run, but read from the shipped files by default
+    assert ("rule prepare:" in res.stdout) == (config != "default")
 
 
 def dry_run(tmp_path, config_text: str):
@@ -74,16 +76,17 @@ def test_config_cases_narrow_every_row(tmp_path):
     runs = {line.split("results/reconstruct/")[1].split("/")[1] for line in out.splitlines()
             if "output: results/reconstruct/" in line}
     assert runs == {"cup_t1"}
-    for row in ("diff_1v", "diff_1v_mitsuba", "learned_1v", "occnet_1v", "diffsdf_6v", "ngp_16v", "colmap_sfm_16v",
-                "visual_hull_6v", "line_convex_hull"):
+    for row in ("diff_1v", "learned_1v", "occnet_1v", "diffsdf_6v", "ngp_16v", "colmap_sfm_16v", "visual_hull_6v",
+                "line_convex_hull"):
         assert f"results/reconstruct/{row}/cup_t1/s0" in out
     assert "ga_1v" not in out  # the GA row lists only trees
 
 
 def test_the_default_config_reads_the_shipped_preparations(tmp_path):
     """The default run trains nothing: its learned rows, the diff path's learned start and the GA
-    read the files the package ships (the same weights on every machine); the benchmark config
-    trains them in the run, and ``prepared: shipped`` with another profile's budgets is refused."""
+    read the files the package ships (the same weights on every machine; the other configs make
+    them in the run, ``test_dry_run_plans_every_stage``); ``prepared: shipped`` with another
+    profile's budgets is refused."""
     from ipm.methods import METHODS
 
     res = snakemake("-n", "--cores", "1", "--configfile", str(ROOT / "pipelines/config/default.yaml"),

@@ -51,6 +51,9 @@ class Method:
     (``{generator}`` in the path): the default profile's, seed 0, made by ``python -m ipm.ship``."""
     seeded: bool = True
     """False for a method without random choices: the pipeline runs it once per case, not per seed."""
+    length: int = 0
+    """How long a run takes, in ranks (0 seconds, 1 a minute or two, 2 several minutes on one core):
+    the workflow starts the longer ones first, so that no long job is left to end the run alone."""
     scored_by: str = "iou_mean"
     """Table 1's headline metric for its rows: ``shape_iou`` where the camera is withheld (one
     uncalibrated photo fixes neither scale against distance nor a cup's lens), the world IoU beside it."""
@@ -106,23 +109,23 @@ def row_label(name: str, views: int) -> str:
     return METHODS[name].label.format(views=f"{views} view" if views == 1 else f"{views} views")
 
 
-_DIFF = dict(layout="hemi", uses_generator=True, differentiable_only=True)
+_DIFF = dict(layout="hemi", uses_generator=True, differentiable_only=True, length=1)
 declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF)
 declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_photo", **_DIFF,
         scored_by="shape_iou")
 declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_DIFF,
         scored_by="shape_iou")
-declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses_generator=True,
+declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses_generator=True, length=2,
         prepare_entry="ipm.methods.ga:collect_generator_statistics", shipped="ipm.methods:prepared/ga_{generator}.json")
-declare("learned", "learned regressor ({views})", "ipm.methods.learned:run_learned", **_DIFF,
+declare("learned", "learned regressor ({views})", "ipm.methods.learned:run_learned", **{**_DIFF, "length": 0},
         prepare_entry="ipm.learned.train:prepare", shipped="ipm.learned:weights/{generator}.json")
 declare("learned_photo", "learned regressor (camera unknown, {views})", "ipm.methods.learned:run_learned_photo",
-        **_DIFF, scored_by="shape_iou", prepare_entry="ipm.learned.train:prepare_photo",
+        **{**_DIFF, "length": 0}, scored_by="shape_iou", prepare_entry="ipm.learned.train:prepare_photo",
         shipped="ipm.learned:weights/{generator}_photo.json")
 declare("diffsdf", "diffSDF-style ({views})", "baselines.diffsdf:run_diffsdf", layout="hemi")
 declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visual_hull", layout="hemi", seeded=False)
 declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")
 declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")
-declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi")
+declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi", length=2)
 declare("occnet", "occupancy network ({views})", "baselines.occnet:run_occnet", layout="hemi",
         learns_generator=True, prepare_entry="baselines.occnet:prepare", shipped="baselines.occnet:weights/{generator}.json")
