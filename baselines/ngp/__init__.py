@@ -34,7 +34,7 @@ class Profile:
     """Width of the one hidden layer of the density and of the colour MLP."""
     view_dependent: bool = False
     """Whether the colour MLP also takes the view direction (the references are diffuse)."""
-    steps: int = 500
+    steps: int = 350
     rays: int = 4096
     """Rays per batch, drawn uniformly (seeded) from all pixels whose ray crosses the box."""
     samples: int = 65536
@@ -73,10 +73,9 @@ PROFILES = {
                      samples=131072, candidates=1024, occupancy=128, mesh_grid=256),
 }
 """Per-profile settings. ``default``: the paper's encoding shape (16 levels, F = 2, 16 to 512 over
-the box, 2^16 entries a level) and 64-wide MLPs, 500 steps of 4096 rays: a 16-view job of 256 px
-within 5 minutes on 2 CPU cores (``bench/ngp_speed.py``, cup_1: 98 s with 2 threads, 150 s with 1,
-184 s with 2 threads beside another long job; 64 views 101 s); on cup_1, 400 and 600 steps
-scored alike. ``paper``: the
+the box, 2^16 entries a level) and 64-wide MLPs, 350 steps of 4096 rays (500 until the dev check
+in ``docs/decisions.md``, "Instant-NGP-style steps": 0.61 x the time, no dev case 0.005 lower):
+a 16-view job of 256 px in 2-3 minutes on one core of the faster kind. ``paper``: the
 paper's NeRF table (2^19 entries, 16 to 2048), a 128^3 occupancy grid, twice the rays and
 samples and 2000 steps (the paper's GPU runs take many more, far past a CPU's budget): about
 0.6 s a step on 2 cores, some 22 minutes for 16 views (timed over 40 steps);
