@@ -44,7 +44,8 @@ def main() -> None:
 
     errors = [(p, 0.0) for p in args.pitch] + [(0.0, f) for f in args.fov]
     names = [f"pitch {p:+g} deg" if p else f"fov {f:+.0%}" for p, f in errors]
-    record = {"machine": machine_info(args.threads), "threads": args.threads, "input_res": args.input_res, "errors": names, "iou": {}}
+    record = {"machine": machine_info(args.threads), "threads": args.threads, "input_res": args.input_res,
+              "errors": names, "iou": {}}
     print(f"{'case':14s}" + "".join(f"{n:>16s}" for n in names), flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for case in args.cases:

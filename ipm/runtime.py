@@ -316,9 +316,9 @@ def machine_info(threads: int | None = None, device: str = "cpu") -> dict:
     import platform
     import socket
 
-    info = _cpuinfo()
-    cpu = info.get("model name") or platform.processor() or platform.machine()
-    info = {"host": socket.gethostname(), "cpu": cpu, "kind": cpu_kind(info.get("flags")), "cpus": os.cpu_count(),
+    fields = _cpuinfo()
+    cpu = fields.get("model name") or platform.processor() or platform.machine()
+    info = {"host": socket.gethostname(), "cpu": cpu, "kind": cpu_kind(fields.get("flags")), "cpus": os.cpu_count(),
             "os": platform.platform(terse=True), "threads": threads, "device": device}
     if device == "cuda":
         import jax

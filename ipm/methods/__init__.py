@@ -128,4 +128,5 @@ declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_co
 declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")
 declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi", length=2)
 declare("occnet", "occupancy network ({views})", "baselines.occnet:run_occnet", layout="hemi",
-        learns_generator=True, prepare_entry="baselines.occnet:prepare", shipped="baselines.occnet:weights/{generator}.json")
+        learns_generator=True, prepare_entry="baselines.occnet:prepare",
+        shipped="baselines.occnet:weights/{generator}.json")

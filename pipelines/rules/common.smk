@@ -165,8 +165,8 @@ def prepared_file(stage, generator, seed):
     if config["prepared"] == "shipped":
         path = METHODS[stage].shipped_file(generator)
         if path is not None:
-            inside = path.resolve().is_relative_to(Path.cwd().resolve())
-            return local(str(path.resolve().relative_to(Path.cwd().resolve()) if inside else path))
+            path, here = path.resolve(), Path.cwd().resolve()
+            return local(str(path.relative_to(here) if path.is_relative_to(here) else path))
     return f"results/prepare/{stage}/{generator}/s{seed}.json"
 
 
