@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.generators import get_generator
 
 SPLITS = ("dev", "test")
 MIN_PRESET_DISTANCE = 0.3
@@ -135,6 +134,8 @@ def sample_case(name: str, generator: str, seed: int, split: str = "test", fov_d
     (yaw 0-360 degrees, offsets up to 0.1, scale 0.85-1.15), an input camera (any azimuth,
     elevation in :data:`ELEVATION_RANGE`) and, with ``fov_drawn``, its field of view (last, so
     that the draws before it do not depend on it)."""
+    from ipm.generators import get_generator  # JAX's import: only where a case is drawn
+
     gen = get_generator(generator)
     rng = np.random.default_rng(seed)
     for draw in range(1, 1001):

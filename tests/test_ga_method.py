@@ -275,6 +275,40 @@ def test_labels_from_the_photo_or_the_label_images(tree_case):
     assert np.array_equal(rgb > 0, views.masks > 0.5) and _label_iou(rgb[0], semantic[0], 2) > 0.85
 
 
+def test_turned_silhouettes_are_the_turned_labels_above_zero():
+    """The loss casts its turned views by any-hit tests: their silhouettes equal the closest-hit
+    labels > 0 (one ray and four rays a pixel), and the rays turned for each base are those of
+    turning every ray on its own, bit for bit (the directions and origins are turned once)."""
+    import math
+
+    from ipm.generators import get_generator
+    from ipm.losses.impostors import TurnedRays, cast_turned
+    from ipm.pose import yaw_matrix
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.semantic import LabelCaster, pixel_rays
+
+    gen = get_generator("trees")
+    mesh, _ = gen.generate(gen.presets[sorted(gen.presets)[0]], 1)
+    v = mesh.vertices / np.ptp(mesh.vertices[:, 1])
+    c2w = orbit_camera(np.array([0.0, 0.5, 0.0]), 2.5, 10.0, 30.0)
+    rng = np.random.default_rng(0)
+    for supersample in (1, 2):
+        rays = pixel_rays(c2w, 0.7, 64, 64, supersample=supersample)
+        turned_rays = TurnedRays(rays, 4)
+        for _ in range(3):
+            base = rng.normal(scale=0.1, size=3)
+            o, d = rays[..., :3].astype(np.float64) - base, rays[..., 3:].astype(np.float64)
+            one_by_one = np.stack([np.concatenate([o @ yaw_matrix(-2 * math.pi * k / 4).T + base,
+                                                   d @ yaw_matrix(-2 * math.pi * k / 4).T], -1)
+                                   for k in range(4)], 1).astype(np.float32)
+            turned = turned_rays(base)
+            assert np.array_equal(turned.view(np.uint32), one_by_one.view(np.uint32))
+            labels = LabelCaster(v, mesh.faces, mesh.labels).labels(turned)
+            placed, silhouettes = cast_turned(v, mesh, turned_rays, base)
+            assert np.array_equal(placed, labels[:, 0])
+            assert np.array_equal(silhouettes, labels[:, 1:] > 0) and 0.05 < silhouettes.mean() < 0.95
+
+
 def test_turned_rays_show_the_object_turned_about_its_base():
     """The symmetry prior's views: rays turned by -a about the base's vertical = the mesh turned by a."""
     from ipm.losses.impostors import mirror_about, turned_rays

@@ -80,13 +80,34 @@ def bbox(labels: np.ndarray):
 def turned_rays(rays: np.ndarray, base: np.ndarray, turns: int) -> np.ndarray:
     """``rays`` (..., 6) turned about the vertical through ``base`` by ``2 pi k / turns``, k =
     0..turns-1, on a new axis after the first (turning the rays by -a shows the object turned by a)."""
-    out = np.empty((rays.shape[0], turns) + rays.shape[1:], np.float32)
-    o, d = rays[..., :3].astype(np.float64) - base, rays[..., 3:].astype(np.float64)
-    for k in range(turns):
-        rot = yaw_matrix(-2.0 * math.pi * k / turns)
-        out[:, k, ..., :3] = o @ rot.T + base
-        out[:, k, ..., 3:] = d @ rot.T
-    return out
+    return TurnedRays(rays, turns)(base)
+
+
+class TurnedRays:
+    """:func:`turned_rays` of fixed ``rays`` (targets, ..., 6) for many ``base`` points: the turned
+    directions do not depend on the base and are made once; the origins are turned once per
+    target, as every ray of a target's window starts at its camera (the rays of ``pixel_rays``)."""
+
+    def __init__(self, rays: np.ndarray, turns: int):
+        rays = np.asarray(rays)
+        self.shape = (rays.shape[0], turns) + rays.shape[1:]
+        self.rots = [yaw_matrix(-2.0 * math.pi * k / turns) for k in range(turns)]
+        d = rays[..., 3:].astype(np.float64)
+        self.dirs = np.stack([(d @ rot.T).astype(np.float32) for rot in self.rots], axis=1)
+        flat = rays[..., :3].reshape(rays.shape[0], -1, 3)
+        self.origins = flat[:, :1].astype(np.float64)  # (targets, 1, 3)
+        self.shared = bool(np.all(flat == flat[:, :1]))
+        self._origins = None if self.shared else rays[..., :3].astype(np.float64)
+
+    def __call__(self, base: np.ndarray) -> np.ndarray:
+        """The turned rays (targets, turns, ..., 6) about the vertical through ``base`` (3,)."""
+        out = np.empty(self.shape, np.float32)
+        out[..., 3:] = self.dirs
+        o = (self.origins if self.shared else self._origins) - base
+        for k, rot in enumerate(self.rots):
+            turned = (o @ rot.T + base).astype(np.float32)
+            out[:, k, ..., :3] = turned.reshape(turned.shape[0], *([1] * (out.ndim - 3)), 3) if self.shared else turned
+        return out
 
 
 def cast_labels(vertices: np.ndarray, mesh: Mesh, rays: np.ndarray, base: np.ndarray, turns: int) -> np.ndarray:
@@ -96,6 +117,19 @@ def cast_labels(vertices: np.ndarray, mesh: Mesh, rays: np.ndarray, base: np.nda
 
     caster = LabelCaster(vertices, mesh.faces, mesh.labels, n_parts=max(2, len(mesh.part_names)))
     return caster.labels(turned_rays(rays, base, turns))
+
+
+def cast_turned(vertices: np.ndarray, mesh: Mesh, rays: TurnedRays, base: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cast_labels` as the loss uses it: the labels of the unturned view (targets, H, W)
+    and only the silhouettes of the turned ones (targets, turns - 1, H, W), equal to their labels
+    ``> 0`` and found by any-hit tests, which stop at the first triangle a ray meets."""
+    from ipm.render.semantic import LabelCaster
+
+    caster = LabelCaster(vertices, mesh.faces, mesh.labels, n_parts=max(2, len(mesh.part_names)))
+    turned = rays(base)
+    if turned.shape[1] == 1:
+        return caster.labels(turned[:, 0]), np.zeros(turned.shape[:2] + turned.shape[2:-2], bool)[:, 1:]
+    return caster.labels(turned[:, 0]), caster.silhouettes(turned[:, 1:])
 
 
 def mirror_about(mask: np.ndarray, x: float) -> np.ndarray:

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ipm.generators.base import Generator
-from ipm.losses.impostors import Target, bbox, cast_labels, make_target, mirror_about
+from ipm.losses.impostors import Target, TurnedRays, bbox, cast_turned, make_target, mirror_about
 from ipm.losses.tree import TreeStats, loss_terms
 from ipm.methods.ga_genome import Genome
 from ipm.methods.ga_options import GAOptions, uses_tree_loss
@@ -59,22 +59,23 @@ class Objective:
                 t.stats = TreeStats(t.labels, graph_vertices=options.graph_vertices)
                 t.stats.features(None, options.n_stripes)  # validates and caches
                 t.mirror = mirror_about(t.labels > 0, t.stats.features(None, options.n_stripes).root_x)
-        self._rays = np.stack([t.rays for t in targets])
+        self._rays = TurnedRays(np.stack([t.rays for t in targets]), self.turns)
         self.evaluations = 0
         self.seconds = 0.0
 
-    def render(self, g: np.ndarray) -> tuple[np.ndarray, int | None]:
-        """Impostor labels (n_targets, turns, impostor, impostor) of genome ``g`` and its graph size."""
+    def render(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray, int | None]:
+        """Impostor labels (n_targets, impostor, impostor) of genome ``g`` as placed, its
+        silhouettes turned (n_targets, turns - 1, impostor, impostor) and its graph size."""
         x = self.genome.params(g)
         mesh, n_graph = self.genome.object_mesh(x, self.options.lod)
         v = self.genome.place(g, mesh)[0]
-        return cast_labels(v, mesh, self._rays, self.genome.pose(g)[1], self.turns), n_graph
+        return *cast_turned(v, mesh, self._rays, self.genome.pose(g)[1]), n_graph
 
     def losses(self, g: np.ndarray) -> np.ndarray:
         """Loss against each target, shape (n_targets,), in [0, 1]."""
         t0 = time.perf_counter()
-        images, n_graph = self.render(g)
-        out = np.array([self._loss(t, img, n_graph) for t, img in zip(self.targets, images)])
+        images, turned, n_graph = self.render(g)
+        out = np.array([self._loss(t, img, side, n_graph) for t, img, side in zip(self.targets, images, turned)])
         self.evaluations += 1
         self.seconds += time.perf_counter() - t0
         return out
@@ -82,9 +83,9 @@ class Objective:
     def __call__(self, g: np.ndarray) -> float:
         return float(np.mean(self.losses(g)))
 
-    def _loss(self, target: Target, images: np.ndarray, n_graph: int | None) -> float:
-        """Loss of one target from the candidate's images (turns, H, W) (view 0 = as placed)."""
-        img = images[0]
+    def _loss(self, target: Target, img: np.ndarray, turned: np.ndarray, n_graph: int | None) -> float:
+        """Loss of one target from the candidate's labels as placed (H, W) and its silhouettes
+        turned (turns - 1, H, W)."""
         box = bbox(img)
         if box is None:
             return 1.0
@@ -98,7 +99,7 @@ class Objective:
         elif self.options.placement == "mask":
             sim *= _iou(ref, img > 0)
         if self.turns > 1:
-            side = np.mean([max(_iou(ref, im > 0), _iou(target.mirror, im > 0)) for im in images[1:]])
+            side = np.mean([max(_iou(ref, im), _iou(target.mirror, im)) for im in turned])
             sim *= 1.0 - self.options.turn_weight * (1.0 - side)
         if self.options.max_graph_vertices is not None and n_graph is not None:
             sim *= min(1.0, self.options.max_graph_vertices / max(n_graph, 1))

@@ -168,6 +168,17 @@ class LabelCaster:
         ids[ids == INVALID] = self._n_faces
         return self._lut[ids]
 
+    def silhouettes(self, rays: np.ndarray) -> np.ndarray:
+        """Object masks (bool) from :func:`pixel_rays` output (..., H, W, k, 6): more than half of a
+        pixel's k rays hit a triangle, as :meth:`labels` ``> 0`` decides; by any-hit tests."""
+        import open3d as o3d
+
+        if self._n_faces == 0:
+            return np.zeros(rays.shape[:-2], bool)
+        hit = self._scene.test_occlusions(o3d.core.Tensor(np.ascontiguousarray(rays, np.float32)),
+                                          nthreads=self.nthreads).numpy()
+        return 2 * np.count_nonzero(hit, axis=-1) > hit.shape[-1]
+
     def labels(self, rays: np.ndarray) -> np.ndarray:
         """Label images from :func:`pixel_rays` output (..., H, W, k, 6): majority over the k rays."""
         hit = self.hits(rays)
