@@ -24,6 +24,13 @@ def test_every_case_says_its_split_and_the_test_split_is_complete():
     for gen in ("dishes", "trees", "buildings"):  # at least 4 sampled and 2 independently built cases per class
         assert sum(c["generator"] == gen and "sampler" in c for c in test) >= 4
         assert sum(c["generator"] == gen and "recipe" in c["source"] for c in test) >= 2
+    # out of family on dev too, by recipes the test split does not use: a rule that picks a default
+    # for cups or buildings sees shapes the generator was not built from
+    test_recipes = {c["source"].get("recipe") for c in test}
+    for gen, least in (("dishes", 4), ("buildings", 3)):
+        built = [cases[n]["source"]["recipe"] for n in dev
+                 if cases[n]["generator"] == gen and "recipe" in cases[n]["source"]]
+        assert len(built) >= least and not set(built) & test_recipes, (gen, built)
     for c in test:
         assert ELEVATION_RANGE[0] <= c["camera"]["elevation_deg"] <= ELEVATION_RANGE[1]
     for split in (dev, {n for n, s in splits.items() if s == "test"}):  # both splits score lenses other than 39.6

@@ -1,0 +1,139 @@
+"""More mesh recipes for out-of-family cases: a mug with a round C handle, a footed bowl, a house
+with a lean-to annex and a T-shaped house. Independent code as in :mod:`datasets_synthetic.recipes`
+(numpy and trimesh, no generator code), registered in its ``RECIPES``; each part closed, wound
+outwards."""
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from datasets_synthetic.recipes import (_DOOR, _ROOF, _WALL, _WINDOW, RECIPES, _assemble, _box, _closed_tubes,
+                                        _facade_openings, _gable_roof, _hull, _revolved)
+from ipm.io.semantic import BUILDING_LABELS
+
+
+@RECIPES.register("c_handle_mug")
+def c_handle_mug(radius=0.3, height=0.72, wall=0.022, floor=0.035, base_round=0.05, handle_low=0.2,
+                 handle_high=0.78, handle_reach=0.19, handle_radius=0.03, sections=96):
+    """A straight-sided mug with a rounded base edge and a round C-shaped handle: a tube swept
+    along a half ellipse from the wall at ``handle_low`` to ``handle_high`` of the height (a
+    revolved body and a swept tube; labels 0 body, 1 handle)."""
+    t = np.linspace(-0.5 * np.pi, 0.0, 8)  # the base edge's quarter circle
+    prof = [[0.0, 0.0]] + [[radius - base_round + base_round * np.cos(a), base_round + base_round * np.sin(a)]
+                           for a in t]
+    prof += [[radius, height], [radius - wall, height], [radius - wall, floor + base_round],
+             [radius - wall - 0.5 * base_round, floor], [0.0, floor]]
+    body = _revolved(prof, sections)
+    s = np.linspace(0.0, 1.0, 33)
+    x0 = radius - 0.5 * wall  # the handle's ends sit in the wall
+    y0, y1 = handle_low * height, handle_high * height
+    pts = np.stack([x0 + handle_reach * np.sin(np.pi * s), y0 + (y1 - y0) * 0.5 * (1 - np.cos(np.pi * s)),
+                    np.zeros_like(s)], 1)
+    v, f = _closed_tubes([(pts, np.full(len(pts), handle_radius))], sides=20)
+    return _assemble([body, trimesh.Trimesh(v, f, process=False)], [0, 1])
+
+
+@RECIPES.register("footed_bowl")
+def footed_bowl(radius=0.46, height=0.32, wall=0.02, foot_radius=0.19, foot_height=0.04, flare=0.7,
+                sections=96):
+    """A wide bowl on a foot ring, its side rising from the foot as a quarter sine bent by
+    ``flare`` (smaller opens it faster), a rounded lip, no handle (a revolved body; label 0)."""
+    s = np.linspace(0.0, 1.0, 16)
+    rise = foot_height + (height - foot_height) * s
+    out_r = foot_radius + (radius - foot_radius) * np.sin(0.5 * np.pi * s) ** flare
+    prof = [[0.0, 0.0], [foot_radius, 0.0]] + [[r, y] for r, y in zip(out_r, rise)]
+    lip = np.linspace(0.0, np.pi, 7)[1:-1]
+    prof += [[radius - 0.5 * wall + 0.5 * wall * np.cos(a), height + 0.5 * wall * np.sin(a)] for a in lip]
+    inner = [[r - wall, y] for r, y in zip(out_r[::-1], rise[::-1]) if r - wall > 0 and y > foot_height + wall]
+    prof += inner + [[0.0, foot_height + wall]]
+    return _assemble([_revolved(prof, sections)], [0])
+
+
+def _centred(walls, roofs, panes, doors):
+    """A building's parts labelled and moved so that its walls' footprint is centred on the y axis."""
+    lo = np.min([w.bounds[0] for w in walls], axis=0)
+    hi = np.max([w.bounds[1] for w in walls], axis=0)
+    parts = [p.apply_translation([-0.5 * (lo[0] + hi[0]), 0.0, -0.5 * (lo[2] + hi[2])])
+             for p in walls + roofs + panes + doors]
+    labels = [_WALL] * len(walls) + [_ROOF] * len(roofs) + [_WINDOW] * len(panes) + [_DOOR] * len(doors)
+    return _assemble(parts, labels)
+
+
+def _lean_to(x0, x1, z0, z1, low, high, overhang, thickness=0.04):
+    """A lean-to against the wall at x = x0: its walls (a convex block whose top falls from ``high``
+    at x0 to ``low`` at x1) and its mono-pitch (skillion) roof slab lying on them, past the walls
+    by ``overhang`` at the low eave and the two sides."""
+    slope = (high - low) / (x1 - x0)
+    walls = _hull([[x, 0.0, z] for x in (x0, x1) for z in (z0, z1)]
+                  + [[x, high - slope * (x - x0), z] for x in (x0, x1) for z in (z0, z1)])
+    xe = x1 + overhang
+    roof = _hull([[x, high - slope * (x - x0) + dy, z] for x in (x0, xe) for z in (z0 - overhang, z1 + overhang)
+                  for dy in (0.0, thickness)])
+    return walls, roof
+
+
+@RECIPES.register("house_with_annex")
+def house_with_annex(width=1.1, depth=0.8, floors=2, storey=0.33, roof_height=0.34, overhang=0.05,
+                     annex_width=0.55, annex_depth=0.6, annex_high=0.42, annex_low=0.26, window=(0.12, 0.16),
+                     spacing=0.27, sill=0.08, door=(0.15, 0.25)):
+    """A two-storey house under a gable roof with a one-storey lean-to annex against its right
+    gable wall under a mono-pitch (skillion) roof, which the buildings generator has no part for:
+    boxes and convex hulls, glass panes standing proud of the walls, a door in the annex front."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    az = 0.5 * annex_depth
+    annex, annex_roof = _lean_to(hx - 0.01, hx + annex_width, -az, az, annex_low, annex_high, overhang)
+    walls = [_box([-hx, 0, -hz], [hx, h, hz]), annex]
+    roofs = [_gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang), annex_roof]
+    panes = []
+    panes += _facade_openings([-hx, 0, hz], [hx, 0, hz], [0, 0, 1], floors, storey, window, spacing, sill)
+    panes += _facade_openings([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1], floors, storey, window, spacing, sill)
+    panes += _facade_openings([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0], floors, storey, window, spacing, sill)
+    panes += _facade_openings([hx + annex_width, 0, az], [hx + annex_width, 0, -az], [1, 0, 0], 1, storey, window,
+                              spacing, sill)
+    dc = np.array([hx + 0.5 * annex_width, 0.0, az])
+    doors = [_box(dc + [-0.5 * door[0], 0.0, -0.012], dc + [0.5 * door[0], door[1], 0.012])]
+    return _centred(walls, roofs, panes, doors)
+
+
+house_with_annex.semantic_labels = BUILDING_LABELS
+
+
+def _cross_gable(x0, x1, z0, z1, base, height, overhang):
+    """A gable roof over [x0, x1] x [z0, z1] with its ridge along z (at the centre in x)."""
+    x0, x1, z0, z1 = x0 - overhang, x1 + overhang, z0 - overhang, z1 + overhang
+    xc = 0.5 * (x0 + x1)
+    return _hull([[x, base, z] for x in (x0, x1) for z in (z0, z1)] + [[xc, base + height, z] for z in (z0, z1)])
+
+
+@RECIPES.register("t_house")
+def t_house(width=1.5, depth=0.6, floors=2, storey=0.32, roof_height=0.3, wing_width=0.55, wing_depth=0.55,
+            wing_floors=2, wing_roof=0.24, overhang=0.04, window=(0.12, 0.16), spacing=0.26, sill=0.08,
+            door=(0.15, 0.25)):
+    """A T-shaped house: a long main block under a gable roof along x and a wing coming forward from
+    the middle of its front under a lower gable along z, so the ridges cross (boxes and convex
+    hulls; glass panes standing proud of the walls, a door in the wing's front)."""
+    h, hw = floors * storey, wing_floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    wx = 0.5 * wing_width
+    walls = [_box([-hx, 0, -hz], [hx, h, hz]), _box([-wx, 0, hz - 0.01], [wx, hw, hz + wing_depth])]
+    roofs = [_gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang),
+             _cross_gable(-wx, wx, hz - 0.01, hz + wing_depth, hw, wing_roof, overhang)]
+    panes = []
+    for a, b in (([-hx, 0, hz], [-wx, 0, hz]), ([wx, 0, hz], [hx, 0, hz])):
+        panes += _facade_openings(a, b, [0, 0, 1], floors, storey, window, spacing, sill)
+    panes += _facade_openings([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1], floors, storey, window, spacing, sill)
+    for sign in (-1, 1):
+        panes += _facade_openings([sign * hx, 0, -sign * hz], [sign * hx, 0, sign * hz], [sign, 0, 0], floors,
+                                  storey, window, spacing, sill)
+        panes += _facade_openings([sign * wx, 0, hz], [sign * wx, 0, hz + wing_depth], [sign, 0, 0], wing_floors,
+                                  storey, window, spacing, sill)
+    front = hz + wing_depth
+    panes += _facade_openings([-wx, 0, front], [wx, 0, front], [0, 0, 1], wing_floors, storey, window, spacing,
+                              sill, skip=lambda a: abs(a - wx) < 0.5 * spacing)
+    dc = np.array([0.0, 0.0, front])
+    doors = [_box(dc + [-0.5 * door[0], 0.0, -0.012], dc + [0.5 * door[0], door[1], 0.012])]
+    return _centred(walls, roofs, panes, doors)
+
+
+t_house.semantic_labels = BUILDING_LABELS
