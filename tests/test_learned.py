@@ -250,3 +250,68 @@ def test_the_memetic_stage_is_shorter_from_the_learned_start(tiny_case, monkeypa
         with pytest.raises(Stop):
             loop.reconstruct(problem, views, profile, progress=False, start=start)
     assert seen == [4, 6, 12, 2]
+
+
+def test_a_learned_start_that_fits_badly_adds_the_presets_stage(tiny_case, monkeypatch):
+    """``learned_fit``: where the best loss of the memetic stage from the learned start is above it,
+    the stage runs again from the presets' start at full length, both last generations reach the
+    finalists, and the trace's ``start`` rows (params.json's ``start``) say what the check saw and
+    which stage the best came from; ``None`` or a loose threshold keep the learned stage alone."""
+    import pandas as pd
+
+    from ipm.io import load_views
+    from ipm.methods.diff import start_record
+    from ipm.profiles import get_profile
+    from ipm.search import loop
+    from ipm.search.starts import preset_start
+    from ipm.search.trial import TRACE_COLUMNS
+
+    class Stop(Exception):
+        pass
+
+    calls, made, seen = [], [], {}
+
+    def memetic(pop, objective, clip, key_of, n_shape, levels, settings, *rest, **kw):
+        calls.append((settings.ga_iterations, {ind.origin for ind in pop}))
+        worse = 0.05 if len(calls) == 1 else 0.0  # the learned stage fits worse than the presets'
+        for k, ind in enumerate(pop):
+            ind.best_loss, ind.best_z = 0.1 + 0.01 * k + worse, ind.z
+        return sorted(pop, key=lambda ind: ind.best_loss)
+
+    def finalists(problem, final, k):
+        seen["final"] = final
+        raise Stop
+
+    def learned(problem, settings, rng, prepare=None):
+        pop = preset_start(problem, settings, rng)
+        pop[0].origin = "learned"
+        return pop
+
+    learned.learned = True
+
+    class Kept(loop.Tracker):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(loop, "memetic", memetic)
+    monkeypatch.setattr(loop, "finalists", finalists)
+    monkeypatch.setattr(loop, "Tracker", Kept)
+    views = load_views(tiny_case / "transforms.json").subset([0])
+    problem = Problem.for_views(get_generator("dishes"), views)
+    for fit, stages in ((0.0, 2), (None, 1), (1.0, 1)):
+        calls.clear()
+        profile = get_profile("default", ga_iterations=12, learned_fit=fit)
+        with pytest.raises(Stop):
+            loop.reconstruct(problem, views, profile, progress=False, start=learned)
+        trace = pd.DataFrame(made[-1].rows, columns=TRACE_COLUMNS)
+        start = trace[trace["stage"] == "start"]
+        record = start_record(trace, profile)["start"]
+        assert [n for n, _ in calls] == [4, 12][:stages] and "learned" in calls[0][1]
+        assert record["learned_fit"] == fit and record["checks"] == [{"loss": pytest.approx(0.15), "presets_added": stages == 2}]
+        if stages == 2:
+            assert "learned" not in calls[1][1] and len(seen["final"]) == 2 * profile.memetic.population
+            assert list(start["origin"]) == ["learned: presets added", "won: presets"]
+            assert record["won"] == "presets" and seen["final"][0].best_loss == pytest.approx(0.1)
+        else:
+            assert list(start["origin"]) == ["learned: kept"] and record["won"] == "learned"

@@ -92,8 +92,21 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
     moved first by ``place`` (4 x 4, a similarity) where given, and ``info`` with the decoded ``z``."""
     mesh = placed_mesh(problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod)), place)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
-            "settings": prof.as_dict(), **info}
+            "settings": prof.as_dict(), **start_record(trace, prof), **info}
     return write_result(out, mesh, info, {"seconds": seconds}, trace)
+
+
+def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:
+    """params.json's ``start`` where the fit began from the learned start: the best loss of its
+    memetic stage per run of it, whether the presets' stage was added (``learned_fit``) and, if
+    so, which start the best of the memetic stage came from."""
+    rows = trace[trace["stage"] == "start"]
+    if rows.empty:
+        return {}
+    checks = [{"loss": float(r.loss), "presets_added": r.origin.endswith("presets added")}
+              for r in rows.itertuples() if not r.origin.startswith("won")]
+    won = [r.origin.split(": ")[1] for r in rows.itertuples() if r.origin.startswith("won")]
+    return {"start": {"learned_fit": prof.loop.learned_fit, "checks": checks, "won": won[0] if won else "learned"}}
 
 
 def placed_mesh(mesh, place: np.ndarray | None):

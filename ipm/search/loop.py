@@ -53,6 +53,10 @@ class LoopSettings(Settings):
     learned_generations: Annotated[int, at_least(1)] = 4
     """The memetic stage's generations (at most ``ga_iterations``) when it starts from the learned
     proposals, which start near the answer (docs/decisions.md, 'Memetic stage from the learned start')."""
+    learned_fit: Annotated[float, at_least(0.0)] | None = None
+    """The learned start checks its fit: where the best loss of its memetic stage is above this, the
+    stage runs again from the presets' start at full length and both last generations go to the
+    finalists; ``None`` trusts it always (docs/decisions.md, 'A learned start that checks its fit')."""
     max_tilt: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Bound of the two tilt angles (radians); 0 holds the object upright, the scene convention.
     Raise it for objects that may lean (docs/decisions.md, 'Upright objects')."""
@@ -102,9 +106,9 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     """Best ``z`` for ``views`` under ``profile`` (``ipm.profiles.DiffProfile``) and the trace (one row
     per evaluation; at the end of each stage its ``iou`` column holds the input-view IoU of the
     stage's best, :func:`input_iou`). ``start`` makes the memetic stage's first population."""
-    loop, mem = profile.loop, profile.memetic
-    if getattr(start, "learned", False):
-        mem = replace(mem, ga_iterations=min(mem.ga_iterations, loop.learned_generations))
+    loop, full = profile.loop, profile.memetic
+    learned = getattr(start, "learned", False)
+    mem = replace(full, ga_iterations=min(full.ga_iterations, loop.learned_generations)) if learned else full
     moves = [m for m in moves_for(problem) if m.applies(problem, profile)]
     phase = {p: [m for m in moves if m.phase == p] for p in PHASES}
     holds = [{}] + [h for m in phase["memetic"] for h in m.holds(problem, profile)]
@@ -127,15 +131,31 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         return [move(c, trial, profile.of(move.settings) if move.settings else None) for c in cands]
 
     objective = Objective(problem, views, mem.memetic_res, max(mem.memetic_lod, least), profile.objective)
-    track.enter("memetic", objective.width)
-    final = []
+
+    def stage(pop: list[Individual], settings) -> list[Individual]:
+        track.enter("memetic", objective.width)
+        return memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, settings,
+                       rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free,
+                       batch=objective.batch(settings.memetic_batch))
+
+    final, added = [], set()
     for held in holds:
         with problem.holding(held):
-            pop = start(problem, mem, rng, objective.match_area)
-            final += memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, mem,
-                             rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free,
-                             batch=objective.batch(mem.memetic_batch))
+            last = stage(start(problem, mem, rng, objective.match_area), mem)
+            if learned:
+                again = loop.learned_fit is not None and last[0].best_loss > loop.learned_fit
+                track.recorder("start", objective.width)("learned: presets added" if again else "learned: kept",
+                                                         last[0].best_loss)
+                if again:
+                    track.extend(full.ga_iterations * (full.adam_per_iteration + full.population))
+                    more = stage(preset_start(problem, full, rng, objective.match_area), full)
+                    added |= {id(ind) for ind in more}
+                    last += more
+            final += last
     final.sort(key=lambda ind: ind.best_loss)
+    if added:
+        track.recorder("start", objective.width)(
+            "won: presets" if id(final[0]) in added else "won: learned", final[0].best_loss)
     checkpoint(final[0].best_z)
     cands = [Candidate(ind.best_z) for ind in finalists(problem, final, loop.refine_candidates)]
     for i, cand in enumerate(cands):

@@ -48,6 +48,11 @@ class Tracker:
         self.bar.update(1)
         self.bar.set_postfix(stage=self.stage, res=self.res, best=f"{self.best:.5f}")
 
+    def extend(self, evaluations: int) -> None:
+        """The progress bar's total grown by ``evaluations`` (a stage the search adds as it goes)."""
+        self.bar.total += evaluations
+        self.bar.refresh()
+
     def recorder(self, stage: str, res: int) -> Callable[[str, float], None]:
         """A trace row per candidate a stage scores by name, at the width it scores."""
         return lambda name, loss: self.row(stage, res, name, loss, min(self.best, loss))
