@@ -99,13 +99,6 @@ def house_with_annex(width=1.1, depth=0.8, floors=2, storey=0.33, roof_height=0.
 house_with_annex.semantic_labels = BUILDING_LABELS
 
 
-def _cross_gable(x0, x1, z0, z1, base, height, overhang):
-    """A gable roof over [x0, x1] x [z0, z1] with its ridge along z (at the centre in x)."""
-    x0, x1, z0, z1 = x0 - overhang, x1 + overhang, z0 - overhang, z1 + overhang
-    xc = 0.5 * (x0 + x1)
-    return _hull([[x, base, z] for x in (x0, x1) for z in (z0, z1)] + [[xc, base + height, z] for z in (z0, z1)])
-
-
 @RECIPES.register("t_house")
 def t_house(width=1.5, depth=0.6, floors=2, storey=0.32, roof_height=0.3, wing_width=0.55, wing_depth=0.55,
             wing_floors=2, wing_roof=0.24, overhang=0.04, window=(0.12, 0.16), spacing=0.26, sill=0.08,
@@ -118,7 +111,7 @@ def t_house(width=1.5, depth=0.6, floors=2, storey=0.32, roof_height=0.3, wing_w
     wx = 0.5 * wing_width
     walls = [_box([-hx, 0, -hz], [hx, h, hz]), _box([-wx, 0, hz - 0.01], [wx, hw, hz + wing_depth])]
     roofs = [_gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang),
-             _cross_gable(-wx, wx, hz - 0.01, hz + wing_depth, hw, wing_roof, overhang)]
+             _gable_roof(-wx, wx, hz - 0.01, hz + wing_depth, hw, wing_roof, overhang, ridge_along_z=True)]
     panes = []
     for a, b in (([-hx, 0, hz], [-wx, 0, hz]), ([wx, 0, hz], [hx, 0, hz])):
         panes += _facade_openings(a, b, [0, 0, 1], floors, storey, window, spacing, sill)

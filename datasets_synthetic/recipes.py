@@ -670,12 +670,14 @@ def tower_block(width=1.0, depth=0.85, floors=7, storey=0.3, band=0.13, slab=0.0
 tower_block.semantic_labels = BUILDING_LABELS
 
 
-def _gable_roof(x0, x1, z0, z1, base, height, overhang) -> trimesh.Trimesh:
-    """A gable roof over [x0, x1] x [z0, z1] with its ridge along x: the convex hull of the eaves
-    and the ridge line."""
+def _gable_roof(x0, x1, z0, z1, base, height, overhang, ridge_along_z: bool = False) -> trimesh.Trimesh:
+    """A gable roof over [x0, x1] x [z0, z1] with its ridge along x (along z with
+    ``ridge_along_z``): the convex hull of the eaves and the ridge line."""
     x0, x1, z0, z1 = x0 - overhang, x1 + overhang, z0 - overhang, z1 + overhang
-    zc = 0.5 * (z0 + z1)
-    return _hull([[x, base, z] for x in (x0, x1) for z in (z0, z1)] + [[x, base + height, zc] for x in (x0, x1)])
+    eaves = [[x, base, z] for x in (x0, x1) for z in (z0, z1)]
+    if ridge_along_z:
+        return _hull(eaves + [[0.5 * (x0 + x1), base + height, z] for z in (z0, z1)])
+    return _hull(eaves + [[x, base + height, 0.5 * (z0 + z1)] for x in (x0, x1)])
 
 
 @RECIPES.register("row_houses")

@@ -95,18 +95,18 @@ class TurnedRays:
         d = rays[..., 3:].astype(np.float64)
         self.dirs = np.stack([(d @ rot.T).astype(np.float32) for rot in self.rots], axis=1)
         flat = rays[..., :3].reshape(rays.shape[0], -1, 3)
-        self.origins = flat[:, :1].astype(np.float64)  # (targets, 1, 3)
-        self.shared = bool(np.all(flat == flat[:, :1]))
-        self._origins = None if self.shared else rays[..., :3].astype(np.float64)
+        shared = bool(np.all(flat == flat[:, :1]))
+        # one origin per target where they all share it, shaped to broadcast over its rays
+        self.origins = (flat[:, :1].reshape((rays.shape[0],) + (1,) * (rays.ndim - 2) + (3,)) if shared
+                        else rays[..., :3]).astype(np.float64)
 
     def __call__(self, base: np.ndarray) -> np.ndarray:
         """The turned rays (targets, turns, ..., 6) about the vertical through ``base`` (3,)."""
         out = np.empty(self.shape, np.float32)
         out[..., 3:] = self.dirs
-        o = (self.origins if self.shared else self._origins) - base
+        o = self.origins - base
         for k, rot in enumerate(self.rots):
-            turned = (o @ rot.T + base).astype(np.float32)
-            out[:, k, ..., :3] = turned.reshape(turned.shape[0], *([1] * (out.ndim - 3)), 3) if self.shared else turned
+            out[:, k, ..., :3] = (o @ rot.T + base).astype(np.float32)
         return out
 
 
@@ -127,8 +127,6 @@ def cast_turned(vertices: np.ndarray, mesh: Mesh, rays: TurnedRays, base: np.nda
 
     caster = LabelCaster(vertices, mesh.faces, mesh.labels, n_parts=max(2, len(mesh.part_names)))
     turned = rays(base)
-    if turned.shape[1] == 1:
-        return caster.labels(turned[:, 0]), np.zeros(turned.shape[:2] + turned.shape[2:-2], bool)[:, 1:]
     return caster.labels(turned[:, 0]), caster.silhouettes(turned[:, 1:])
 
 

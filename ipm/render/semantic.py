@@ -173,7 +173,7 @@ class LabelCaster:
         pixel's k rays hit a triangle, as :meth:`labels` ``> 0`` decides; by any-hit tests."""
         import open3d as o3d
 
-        if self._n_faces == 0:
+        if self._n_faces == 0 or rays.size == 0:
             return np.zeros(rays.shape[:-2], bool)
         hit = self._scene.test_occlusions(o3d.core.Tensor(np.ascontiguousarray(rays, np.float32)),
                                           nthreads=self.nthreads).numpy()
