@@ -89,6 +89,13 @@ class UnknownCamera:
     """Whether the render camera's pitch, and its field of view unless given (then held), were
     proposed by the camera-hidden regressor (``ipm.learned.propose.propose_camera``)."""
 
+    @classmethod
+    def of(cls, numbers) -> "UnknownCamera":
+        """The camera of ``numbers`` (pitch0, fov0, the foot's x and y, width, height; traced
+        values inside a compiled program, ``ipm.problem.Problem.constants``): what
+        :meth:`placement` and :meth:`to_render` read."""
+        return cls(numbers[0], numbers[1], True, (numbers[2], numbers[3], numbers[4], numbers[5]))
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the camera genes."""
         lo_f, hi_f = focal_ratio_bounds(self.fov0) if not self.fov_known else (0.0, 0.0)
@@ -111,7 +118,7 @@ class UnknownCamera:
         pixel and the object its size in the image: the camera's genes then change how the object
         is seen, not where, and Adam can move them without dragging the pose along."""
         x, y, width, height = self.foot
-        f0 = 0.5 * width / np.tan(0.5 * self.fov0)
+        f0 = 0.5 * width / xp.tan(0.5 * self.fov0)
 
         def contact(pitch, roll, log_focal):
             f = f0 * xp.exp(log_focal)
@@ -129,7 +136,7 @@ class UnknownCamera:
         """World points (k, 3) seen by the camera ``genes`` mapped to where the render camera sees
         them at the same pixels (pure JAX)."""
         eye = jnp.asarray(EYE, points.dtype)
-        r0 = jnp.asarray(attitude(self.pitch0, 0.0), points.dtype)
+        r0 = attitude(self.pitch0, 0.0, jnp).astype(points.dtype)
         r = attitude(genes[0], genes[1], jnp)
         k = jnp.exp(genes[2])
         scale = jnp.stack([k, k, jnp.ones_like(k)])

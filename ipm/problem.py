@@ -198,77 +198,38 @@ class Problem:
         z[self.n_shape] = np.mod(z[self.n_shape], 2 * np.pi)
         return z
 
-    def vertex_fn(self, key: tuple, lod: int):
+    def constants(self, dtype=np.float32) -> np.ndarray:
+        """The problem's own numbers its vertex functions read as an argument, not as constants
+        compiled in (:data:`CONSTANTS`), so problems of one generator share compiled programs."""
+        cam = self.camera
+        extra = [] if cam is None else [cam.pitch0, cam.fov0, *cam.foot]
+        return np.array([*self.anchor_t, self.anchor_s, *extra], dtype)
+
+    def vertex_fn(self, key: tuple, lod: int) -> BoundVertices:
         """Pure JAX function z (dim,) -> flattened world vertices (3 V,), for one topology (for a
         generator with ``shared_positions``, one function for all, reading the discrete values from z)."""
         return self._vertex_fn(None if self.generator.shared_positions else key, lod)
 
     @lru_cache(maxsize=None)
-    def _vertex_fn(self, key: tuple | None, lod: int, render: bool = True):
-        positions = self.generator.positions_fn(key, lod)
-        shape_x, world = self._maps(key, render)
-
-        def fn(z):
-            return world(positions(shape_x(z)), z).ravel()
-
-        return jax.jit(fn)
-
-    def _maps(self, key: tuple | None, render: bool = True):
-        """``shape_x(z)``: physical parameters (discrete ones from ``key``, or rounded from ``z``
-        when ``key`` is None); ``world(v, z)``: generator-frame vertices (V, 3) to the world, and
-        with ``render`` and an unknown camera on to the render camera's frame (``ipm.photo``)."""
-        spec, n = self.spec, self.n_shape
-        lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
-        discrete = jnp.asarray(spec.discrete)
-        disc_values = np.array(spec.default, np.float32)
-        for name, value in zip([nm for nm, d in zip(spec.names, spec.discrete) if d], key or ()):
-            disc_values[spec.index[name]] = value
-        disc_values = jnp.asarray(disc_values)
-
-        def shape_x(z):
-            x = lo + jnp.clip(z[:n], 0.0, 1.0) * span
-            return jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
-
-        def world(v, z):
-            t, s = self._placement(z, jnp)
-            p = z[n:]
-            out = s * v @ _rotation(p[0], p[1], p[2]).T + t
-            return camera.to_render(out, p[len(POSE_NAMES):]) if render and camera is not None else out
-
-        camera = self.camera
-        return shape_x, world
+    def _vertex_fn(self, key: tuple | None, lod: int, render: bool = True) -> BoundVertices:
+        return BoundVertices(_vertex_program(self.generator, key, lod, self.camera is not None, render),
+                             self.constants())
 
     def _placement(self, z, xp=np):
         """The object's translation and scale at ``z`` (``xp``: numpy or jax.numpy): the anchor
         plus the pose's offsets, or, with an unknown camera, riding on its foot ray
         (``UnknownCamera.placement``)."""
-        p = z[self.n_shape:]
-        t0, s0 = xp.asarray(self.anchor_t, p.dtype), self.anchor_s
-        if self.camera is None:
-            return t0 + s0 * p[3:6], s0 * xp.exp(p[6])
-        here, base, ratio = self.camera.placement(p[len(POSE_NAMES):], xp)
-        return here + ratio * (t0 - base + s0 * p[3:6]), s0 * xp.exp(p[6]) * ratio
+        return _placement(z[self.n_shape:], self.constants(np.float64), self.camera is not None, xp)
 
     @lru_cache(maxsize=None)
-    def group_vertex_fn(self, lod: int, groups: tuple[tuple[int, ...], ...]):
+    def group_vertex_fn(self, lod: int, groups: tuple[tuple[int, ...], ...]) -> BoundVertices:
         """For a generator with ``shared_positions``: pure JAX z -> world vertices of every render
         group, flattened (G * 3 V,). Group g keeps the vertices of the solids the object ``z`` has
         whose part is in ``groups[g]``; every other vertex goes to the object's ground point, so
         its triangles have no area. With ``generator.all_faces(lod)`` in every group, one renderer
         scene serves all topologies (a new Mitsuba scene costs seconds of kernel compilation)."""
-        gen = self.generator
-        positions = gen.positions_fn(None, lod)
-        shape_x, world = self._maps(None)
-        members = [jnp.asarray(np.isin(np.arange(len(gen.part_names)), g)) for g in groups]
-
-        def fn(z):
-            x = shape_x(z)
-            part, present = gen.vertex_layout(x, lod)
-            v = world(positions(x), z)
-            ground = world(jnp.zeros((1, 3), v.dtype), z)
-            return jnp.concatenate([jnp.where((present & m[part])[:, None], v, ground) for m in members]).ravel()
-
-        return jax.jit(fn)
+        return BoundVertices(_group_program(self.generator, lod, groups, self.camera is not None),
+                             self.constants())
 
     def regulariser(self, z: np.ndarray, weight: float) -> tuple[float, np.ndarray]:
         """Smoothness prior on the generator's control sequences: mean squared finite differences
@@ -286,7 +247,7 @@ class Problem:
         key = self.key(z)
         topo = self.generator.topology(key, lod)
         fn = self._vertex_fn(None if self.generator.shared_positions else key, lod, render=False)
-        verts = np.asarray(fn(jnp.asarray(z, jnp.float32)), np.float64).reshape(-1, 3)
+        verts = np.asarray(fn(np.asarray(z, np.float32)), np.float64).reshape(-1, 3)
         return build_mesh(verts, topo, self.generator.part_names)
 
     def object_height(self, u: np.ndarray) -> float:
@@ -310,9 +271,9 @@ class Problem:
     def to_world(self, z: np.ndarray):
         """The map of object-frame points (k, 3) to the world at ``z``'s pose (numpy); with an
         unknown camera, the render camera's world (where ``views.c2w`` sees them)."""
-        world = self._maps(None)[1]
-        zj = jnp.asarray(z, jnp.float32)
-        return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj), np.float64)
+        world = _maps(self.generator, None, self.camera is not None, True)[1]
+        zj, c = jnp.asarray(z, jnp.float32), jnp.asarray(self.constants())
+        return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj, c), np.float64)
 
     def decode(self, z: np.ndarray) -> dict:
         """Parameters by name and the pose in world terms (for params.json)."""
@@ -329,3 +290,97 @@ class Problem:
                 "translation": np.asarray(translation).tolist(), "scale": float(scale),
             },
         }
+
+
+CONSTANTS = ("anchor_x", "anchor_y", "anchor_z", "anchor_scale", "pitch0", "fov0", "foot_x", "foot_y", "width",
+             "height")
+"""The numbers of :meth:`Problem.constants`: the anchor, then an unknown camera's (``ipm.photo.UnknownCamera``)."""
+
+
+class BoundVertices:
+    """A vertex program ``program(z, constants)`` shared by every problem of one generator, topology
+    and level of detail, bound to one problem's :meth:`Problem.constants`: called as ``f(z)``. The
+    renderers compile ``program`` with the constants as an argument (``ipm.render.edge_programs``),
+    so a second case, seed, field of view or pitch start reads the compiled loss back."""
+
+    def __init__(self, program, constants: np.ndarray):
+        self.program, self.constants = program, constants
+
+    def __call__(self, z):
+        return self.program(z, self.constants)
+
+
+_PROGRAMS: dict = {}
+"""Vertex programs by (generator class, topology or groups, level of detail, camera, render)."""
+
+
+def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera: bool, render: bool = True):
+    """jit(z, constants) -> flattened vertices of ``gen``'s topology ``key`` at ``lod``."""
+    name = (type(gen), "topology", key, lod, camera, render)
+    if name not in _PROGRAMS:
+        positions = gen.positions_fn(key, lod)
+        shape_x, world = _maps(gen, key, camera, render)
+
+        def fn(z, c):
+            return world(positions(shape_x(z)), z, c).ravel()
+
+        _PROGRAMS[name] = jax.jit(fn)
+    return _PROGRAMS[name]
+
+
+def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...], camera: bool):
+    """jit(z, constants) -> vertices of every render group (:meth:`Problem.group_vertex_fn`)."""
+    name = (type(gen), "groups", groups, lod, camera, True)
+    if name not in _PROGRAMS:
+        positions = gen.positions_fn(None, lod)
+        shape_x, world = _maps(gen, None, camera, True)
+        members = [jnp.asarray(np.isin(np.arange(len(gen.part_names)), g)) for g in groups]
+
+        def fn(z, c):
+            x = shape_x(z)
+            part, present = gen.vertex_layout(x, lod)
+            v = world(positions(x), z, c)
+            ground = world(jnp.zeros((1, 3), v.dtype), z, c)
+            return jnp.concatenate([jnp.where((present & m[part])[:, None], v, ground) for m in members]).ravel()
+
+        _PROGRAMS[name] = jax.jit(fn)
+    return _PROGRAMS[name]
+
+
+def _maps(gen: Generator, key: tuple | None, camera: bool, render: bool):
+    """``shape_x(z)``: physical parameters (discrete ones from ``key``, or rounded from ``z`` when
+    ``key`` is None); ``world(v, z, constants)``: generator-frame vertices (V, 3) to the world, and
+    with an unknown ``camera`` and ``render`` on to the render camera's frame (``ipm.photo``)."""
+    from ipm.photo import UnknownCamera
+
+    spec, n = gen.spec, len(gen.spec)
+    lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
+    discrete = jnp.asarray(spec.discrete)
+    disc_values = np.array(spec.default, np.float32)
+    for name, value in zip([nm for nm, d in zip(spec.names, spec.discrete) if d], key or ()):
+        disc_values[spec.index[name]] = value
+    disc_values = jnp.asarray(disc_values)
+
+    def shape_x(z):
+        x = lo + jnp.clip(z[:n], 0.0, 1.0) * span
+        return jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
+
+    def world(v, z, c):
+        p = z[n:]
+        t, s = _placement(p, c, camera, jnp)
+        out = s * v @ _rotation(p[0], p[1], p[2]).T + t
+        return UnknownCamera.of(c[4:]).to_render(out, p[len(POSE_NAMES):]) if camera and render else out
+
+    return shape_x, world
+
+
+def _placement(p, c, camera: bool, xp=np):
+    """Translation and scale of the pose genes ``p`` (then the camera's) for the constants ``c``
+    (:data:`CONSTANTS`; ``xp``: numpy or jax.numpy)."""
+    t0, s0 = xp.asarray(c[:3], p.dtype), c[3]
+    if not camera:
+        return t0 + s0 * p[3:6], s0 * xp.exp(p[6])
+    from ipm.photo import UnknownCamera
+
+    here, base, ratio = UnknownCamera.of(c[4:]).placement(p[len(POSE_NAMES):], xp)
+    return here + ratio * (t0 - base + s0 * p[3:6]), s0 * xp.exp(p[6]) * ratio

@@ -86,20 +86,39 @@ def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int],
 
 
 @lru_cache(maxsize=64)
-def _loss_fn(vertex_fn: Callable, width: int, height: int, ss: int, budget: int, batched: bool = False):
-    """jit(z, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed per view):
-    the generator's vertices and pullback around :func:`_silhouette_loss` in one program. The faces
-    are an argument, not a constant (XLA would fold it into the program at every compilation).
-    ``batched``: over a leading axis of ``z`` and ``jitter`` (individuals of one topology)."""
+def _loss_fn(program: Callable, width: int, height: int, ss: int, budget: int, batched: bool = False):
+    """jit(z, constants, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed
+    per view): the generator's vertices ``program(z, constants)`` (:func:`split`) and pullback around
+    :func:`_silhouette_loss` in one program. The faces and the problem's constants are arguments,
+    not constants (XLA would fold them into the program at every compilation, and a new case or
+    camera would compile anew). ``batched``: over a leading axis of ``z`` and ``jitter``
+    (individuals of one topology)."""
     render = _silhouette_loss(width, height, ss, budget, batched)
-    vertices_of = jax.vmap(vertex_fn) if batched else vertex_fn
+    vertices_of = jax.vmap(program, in_axes=(0, None)) if batched else program
 
-    def fn(z, faces, targets, w2c, focal, jitter):
-        vertices, pullback = jax.vjp(vertices_of, z)
+    def fn(z, constants, faces, targets, w2c, focal, jitter):
+        vertices, pullback = jax.vjp(lambda z: vertices_of(z, constants), z)
         loss, grad, needed = render.inline(vertices, faces, targets, w2c, focal, jitter)
         return loss, pullback(grad)[0], needed
 
     return jax.jit(fn)
+
+
+def split(vertex_fn: Callable) -> tuple[Callable, np.ndarray]:
+    """``(program(z, constants), constants)`` of a vertex function: a ``BoundVertices``'s own
+    (``ipm.problem``), or any other ``f(z)`` as a program that ignores its (empty) constants."""
+    program = getattr(vertex_fn, "program", None)
+    if program is not None:
+        return program, vertex_fn.constants
+    return _ignoring_constants(vertex_fn), _NO_CONSTANTS
+
+
+_NO_CONSTANTS = np.zeros(0, np.float32)
+
+
+@lru_cache(maxsize=64)
+def _ignoring_constants(vertex_fn: Callable) -> Callable:
+    return lambda z, constants: vertex_fn(z)
 
 
 @lru_cache(maxsize=64)
@@ -176,6 +195,7 @@ def _stored(fn: Callable, *name) -> StoredProgram:
 
 
 @lru_cache(maxsize=64)
-def _pullback(vertex_fn: Callable):
-    """jit(z, d loss / d vertices) -> d loss / d z: the generator's vector-Jacobian product."""
-    return jax.jit(lambda z, cotangent: jax.vjp(vertex_fn, z)[1](cotangent)[0])
+def _pullback(program: Callable):
+    """jit(z, constants, d loss / d vertices) -> d loss / d z: the vector-Jacobian product of the
+    generator's vertices ``program(z, constants)``."""
+    return jax.jit(lambda z, constants, cotangent: jax.vjp(lambda z: program(z, constants), z)[1](cotangent)[0])

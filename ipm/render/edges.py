@@ -19,7 +19,7 @@ from ipm.errors import UserError
 from ipm.render.edge_classes import pyramid_loss  # noqa: F401  (re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
     _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
-    _round_up, _silhouette_loss, with_headroom,
+    _round_up, _silhouette_loss, split, with_headroom,
 )
 from ipm.render.edge_scan import camera_arrays, project, row_ranges, supersampling
 from ipm.render.silhouette import group_count as _group_count, highlight_arrays
@@ -165,9 +165,11 @@ class EdgeRenderer:
         groups = _face_classes(faces)[0]
         z_in, jitter_in = (zj, jitter) if batched else (zj[0], jitter[0])
 
+        program, constants = split(vertex_fn)
+
         def run(f, budget):
-            fn = _loss_fn(vertex_fn, self.width, self.height, self.ss, budget, batched)
-            return fn(z_in, f, targets, self._w2c, self.focal, jitter_in)
+            fn = _loss_fn(program, self.width, self.height, self.ss, budget, batched)
+            return fn(z_in, constants, f, targets, self._w2c, self.focal, jitter_in)
 
         loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(zj[0]), run)
         grad = np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(len(zs), -1)
@@ -200,5 +202,6 @@ class EdgeRenderer:
                 self.width, self.height, self.ss, budget, tuple(highlight[1:]))(
                 vertices, f, cls, targets, class_targets, self._w2c, self.focal, j), classes)
             losses.append(float(loss))
-            grads.append(np.asarray(_pullback(vertex_fn)(z, dv), np.float64))
+            program, constants = split(vertex_fn)
+            grads.append(np.asarray(_pullback(program)(z, constants, dv), np.float64))
         return np.array(losses), np.nan_to_num(np.stack(grads), nan=0.0, posinf=0.0, neginf=0.0)
