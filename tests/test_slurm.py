@@ -61,11 +61,13 @@ def cluster(request):
 
 
 def snakemake_cmd(workdir: Path, *extra: str) -> list[str]:
-    """The DAG of tests/data/slurm.yaml through profiles/slurm; status checks from 3 s on (the
-    plugin's 40 s suits real jobs, not these few seconds long) and every SLURM log kept."""
+    """The DAG of tests/data/slurm.yaml through profiles/slurm; status checks from 3 s on and every
+    2 s (the plugin's 40 s and Snakemake's 10 s suit real jobs, not these few seconds long) and
+    every SLURM log kept."""
     return [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--profile",
             str(ROOT / "profiles" / "slurm"), "--configfile", str(CONFIG), "--directory", str(workdir),
-            "--slurm-init-seconds-before-status-checks", "3", "--slurm-keep-successful-logs", *extra]
+            "--slurm-init-seconds-before-status-checks", "3", "--seconds-between-status-checks", "2",
+            "--slurm-keep-successful-logs", *extra]
 
 
 def run(cmd: list[str], timeout: int = 600) -> subprocess.CompletedProcess:

@@ -100,6 +100,14 @@ def method_name(wildcards):
     return method_of(wildcards)["name"]
 
 
+def reconstruct_priority(wildcards):
+    """The longest methods first (the GA, instant-NGP-style, then ours): a long job started last
+    ends the run alone. Within a method, a case's first seed before its others, which then read
+    the programs it compiled back from JAX's cache instead of compiling them beside it."""
+    m = method_of(wildcards)
+    return 2 * METHODS[m["name"]].length + (int(wildcards.seed) == method_seeds(m, wildcards.case)[0])
+
+
 def method_views(wildcards):
     return method_of(wildcards)["views"]
 

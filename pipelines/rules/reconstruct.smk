@@ -30,8 +30,7 @@ rule reconstruct:
         "logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv"
     wildcard_constraints:
         row=METHOD_ROW,
-    # the longest first (the GA, instant-NGP-style, then ours): a long job started last ends the run alone
-    priority: lambda wildcards: METHODS[method_name(wildcards)].length
+    priority: reconstruct_priority
     conda:
         "../envs/ipm.yaml"
     threads: 1
