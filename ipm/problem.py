@@ -212,14 +212,19 @@ class Problem:
 
     @lru_cache(maxsize=None)
     def _vertex_fn(self, key: tuple | None, lod: int, render: bool = True) -> BoundVertices:
-        return BoundVertices(_vertex_program(self.generator, key, lod, self.camera is not None, render),
-                             self.constants())
+        return BoundVertices(_vertex_program(self.generator, key, lod, self._camera_kind, render), self.constants())
 
     def _placement(self, z, xp=np):
         """The object's translation and scale at ``z`` (``xp``: numpy or jax.numpy): the anchor
         plus the pose's offsets, or, with an unknown camera, riding on its foot ray
         (``UnknownCamera.placement``)."""
-        return _placement(z[self.n_shape:], self.constants(np.float64), self.camera is not None, xp)
+        return _placement(z[self.n_shape:], self.constants(np.float64), self._camera_kind, xp)
+
+    @property
+    def _camera_kind(self):
+        """The unknown camera's class (``ipm.photo.UnknownCamera``), whose ``of`` makes one from
+        :meth:`constants` inside a program; None for a known camera."""
+        return None if self.camera is None else type(self.camera)
 
     @lru_cache(maxsize=None)
     def group_vertex_fn(self, lod: int, groups: tuple[tuple[int, ...], ...]) -> BoundVertices:
@@ -228,8 +233,7 @@ class Problem:
         whose part is in ``groups[g]``; every other vertex goes to the object's ground point, so
         its triangles have no area. With ``generator.all_faces(lod)`` in every group, one renderer
         scene serves all topologies (a new Mitsuba scene costs seconds of kernel compilation)."""
-        return BoundVertices(_group_program(self.generator, lod, groups, self.camera is not None),
-                             self.constants())
+        return BoundVertices(_group_program(self.generator, lod, groups, self._camera_kind), self.constants())
 
     def regulariser(self, z: np.ndarray, weight: float) -> tuple[float, np.ndarray]:
         """Smoothness prior on the generator's control sequences: mean squared finite differences
@@ -271,7 +275,7 @@ class Problem:
     def to_world(self, z: np.ndarray):
         """The map of object-frame points (k, 3) to the world at ``z``'s pose (numpy); with an
         unknown camera, the render camera's world (where ``views.c2w`` sees them)."""
-        world = _maps(self.generator, None, self.camera is not None, True)[1]
+        world = _maps(self.generator, None, self._camera_kind, True)[1]
         zj, c = jnp.asarray(z, jnp.float32), jnp.asarray(self.constants())
         return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj, c), np.float64)
 
@@ -314,7 +318,7 @@ _PROGRAMS: dict = {}
 """Vertex programs by (generator class, topology or groups, level of detail, camera, render)."""
 
 
-def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera: bool, render: bool = True):
+def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera, render: bool = True):
     """jit(z, constants) -> flattened vertices of ``gen``'s topology ``key`` at ``lod``."""
     name = (type(gen), "topology", key, lod, camera, render)
     if name not in _PROGRAMS:
@@ -328,7 +332,7 @@ def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera: bool, r
     return _PROGRAMS[name]
 
 
-def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...], camera: bool):
+def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...], camera):
     """jit(z, constants) -> vertices of every render group (:meth:`Problem.group_vertex_fn`)."""
     name = (type(gen), "groups", groups, lod, camera, True)
     if name not in _PROGRAMS:
@@ -347,12 +351,11 @@ def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...]
     return _PROGRAMS[name]
 
 
-def _maps(gen: Generator, key: tuple | None, camera: bool, render: bool):
+def _maps(gen: Generator, key: tuple | None, camera, render: bool):
     """``shape_x(z)``: physical parameters (discrete ones from ``key``, or rounded from ``z`` when
     ``key`` is None); ``world(v, z, constants)``: generator-frame vertices (V, 3) to the world, and
-    with an unknown ``camera`` and ``render`` on to the render camera's frame (``ipm.photo``)."""
-    from ipm.photo import UnknownCamera
-
+    with an unknown camera (``camera``: its class, ``Problem._camera_kind``) and ``render`` on to the
+    render camera's frame (``ipm.photo``)."""
     spec, n = gen.spec, len(gen.spec)
     lo, span = jnp.asarray(spec.lower, jnp.float32), jnp.asarray(spec.upper - spec.lower, jnp.float32)
     discrete = jnp.asarray(spec.discrete)
@@ -369,18 +372,16 @@ def _maps(gen: Generator, key: tuple | None, camera: bool, render: bool):
         p = z[n:]
         t, s = _placement(p, c, camera, jnp)
         out = s * v @ _rotation(p[0], p[1], p[2]).T + t
-        return UnknownCamera.of(c[4:]).to_render(out, p[len(POSE_NAMES):]) if camera and render else out
+        return camera.of(c[4:]).to_render(out, p[len(POSE_NAMES):]) if camera is not None and render else out
 
     return shape_x, world
 
 
-def _placement(p, c, camera: bool, xp=np):
+def _placement(p, c, camera, xp=np):
     """Translation and scale of the pose genes ``p`` (then the camera's) for the constants ``c``
-    (:data:`CONSTANTS`; ``xp``: numpy or jax.numpy)."""
+    (:data:`CONSTANTS`; ``camera``: an unknown camera's class or None; ``xp``: numpy or jax.numpy)."""
     t0, s0 = xp.asarray(c[:3], p.dtype), c[3]
-    if not camera:
+    if camera is None:
         return t0 + s0 * p[3:6], s0 * xp.exp(p[6])
-    from ipm.photo import UnknownCamera
-
-    here, base, ratio = UnknownCamera.of(c[4:]).placement(p[len(POSE_NAMES):], xp)
+    here, base, ratio = camera.of(c[4:]).placement(p[len(POSE_NAMES):], xp)
     return here + ratio * (t0 - base + s0 * p[3:6]), s0 * xp.exp(p[6]) * ratio
