@@ -139,8 +139,9 @@ def _start_xla_cpu(threads: int) -> None:
     diffSDF-style baseline kept 1.7 cores busy under ``--threads 1``. So the client is started
     with the calling thread pinned to ``threads`` CPUs (new threads inherit that mask), and then
     every thread of the process gets the whole mask back, so the scheduler can still move the
-    job to whichever core is free. Does nothing when ``threads`` covers every CPU, or where the
-    system has no CPU affinity (not Linux).
+    job to whichever core is free. Does nothing more when ``threads`` covers every CPU, or where
+    the system has no CPU affinity (not Linux). With one thread, JAX's CPU programs run on the
+    calling thread (no asynchronous dispatch).
     """
     if threads == 1:
         # one thread computes on the calling thread: JAX's CPU client otherwise runs each program on

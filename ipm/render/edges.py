@@ -196,12 +196,12 @@ class EdgeRenderer:
             self._classes[key] = jnp.asarray(classes)
         cls, class_targets = self._classes[key], self._on_device(highlight[0])
         losses, grads = [], []
+        program, constants = split(vertex_fn)
         for z, j in zip(zj, jitter):
             vertices = vertex_fn(z)
             loss, dv = self._run(key, groups, lambda: vertices, lambda f, budget: _class_loss_fn(
                 self.width, self.height, self.ss, budget, tuple(highlight[1:]))(
                 vertices, f, cls, targets, class_targets, self._w2c, self.focal, j), classes)
             losses.append(float(loss))
-            program, constants = split(vertex_fn)
             grads.append(np.asarray(_pullback(program)(z, constants, dv), np.float64))
         return np.array(losses), np.nan_to_num(np.stack(grads), nan=0.0, posinf=0.0, neginf=0.0)
