@@ -32,9 +32,16 @@ def _cpu_and_wall(args: list[str]) -> tuple[float, float]:
     ["baseline", "diffsdf", "--profile", "default", "--n-input-views", "2"],  # JAX (XLA) heavy
 ], ids=["diff", "diffsdf"])
 def test_a_one_thread_job_keeps_one_core_busy(command, tiny_case, tmp_path):
+    """Measured on the job's second run, its programs read from the compilation cache: XLA's
+    compiler pipelines a program's emission and its machine code on two threads whatever the
+    job's thread count (8-9 % of a cold smoke fit's wall time had both running), and how much a
+    first run compiles depends on which tests filled the shared cache before it. The pools that
+    compute (XLA's, Dr.Jit's) are what ``--threads`` bounds, and a run that only computes shows
+    them (diffSDF kept 1.7 cores busy before its pools were bounded)."""
     ipm = [sys.executable, "-m", "ipm.cli"]
-    cpu, wall = _cpu_and_wall([*ipm, *command, "--views", str(Path(tiny_case) / "transforms.json"),
-                               "--out", str(tmp_path / "out"), "--threads", "1", "--quiet"])
+    args = [*ipm, *command, "--views", str(Path(tiny_case) / "transforms.json"), "--threads", "1", "--quiet"]
+    _cpu_and_wall([*args, "--out", str(tmp_path / "first")])
+    cpu, wall = _cpu_and_wall([*args, "--out", str(tmp_path / "out")])
     assert cpu <= CPU_OVER_WALL * wall, f"{cpu:.1f} s CPU in {wall:.1f} s wall"
 
 
