@@ -11,7 +11,8 @@ from ipm.io.atomic import atomic_path
 
 from .align import shape_iou
 from .recovery import camera_recovery, parameter_recovery
-from .silhouette import bounding_sphere, check_reference, finite_part, silhouette_iou, silhouette_masks
+from .silhouette import (bounding_sphere, check_reference, fibonacci_cameras, finite_part, raycast_masks,
+                         silhouette_iou, silhouette_masks)
 from .volume import volumetric_iou
 
 MIN_ANGLE_DEG = 5.0  # a triangle with a smaller interior angle is a sliver
@@ -74,11 +75,13 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
                 n_views: int = 64) -> None:
     """Write a strip of ``n`` metric views: both masks white, reference only red, reconstruction only cyan.
 
-    Views are spread evenly over the ``n_views`` metric cameras; the file is written atomically.
+    Views are spread evenly over the ``n_views`` metric cameras (only those are cast); the file is
+    written atomically.
     """
-    ref, rec, _ = silhouette_masks(reference, mesh, n_views, res)
-    idx = np.linspace(0, n_views - 1, min(n, n_views)).round().astype(int)
-    ref, rec = ref[idx, ..., None], rec[idx, ..., None]
+    check_reference(reference)
+    cams = fibonacci_cameras(*bounding_sphere(reference), n_views)
+    cams = [cams[i] for i in np.linspace(0, n_views - 1, min(n, n_views)).round().astype(int)]
+    ref, rec = (raycast_masks(m, cams, res)[..., None] for m in (reference, finite_part(mesh)))
     img = np.where(ref & rec, [255, 255, 255], np.where(ref, [220, 40, 40], np.where(rec, [40, 200, 220], 0)))
     img = np.pad(img, ((0, 0), (2, 2), (2, 2), (0, 0)), constant_values=90)  # grey frame between views
     strip = np.concatenate(list(img), axis=1).astype(np.uint8)

@@ -90,8 +90,10 @@ def parameter_recovery(case: dict, params: dict | None, reference_height: float,
     for objects that look the same turned, ``Generator.yaw_symmetric``), translation error over
     the reference's height, size error in percent (the world heights of reconstruction and
     reference). Empty for out-of-family cases, baselines and other generators."""
+    if not params or params.get("generator") != case["source"].get("generator"):  # no generator import then
+        return {}
     truth = true_parameters(case)
-    if truth is None or not params or params.get("generator") != truth[0].name:
+    if truth is None or params.get("generator") != truth[0].name:
         return {}
     gen, x_true = truth
     spec = gen.spec
