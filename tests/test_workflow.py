@@ -201,9 +201,10 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
                                    "convex hull (reference)", "bounding sphere (reference)",
                                    "true parameters, other seed (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    # diff: 3 cases x 2 seeds; the learned row, GA, COLMAP: their cases; the reseeded truth: the one
-    # stochastic in-family case (tree_1); the rest: every case, once
-    assert len(table) == 6 + 1 + 2 + 1 + 1 + 4 * len(cases)
+    # diff: 3 cases x 2 seeds; the learned row, GA, COLMAP, diffSDF: their cases; the reseeded truth:
+    # the one stochastic in-family case (tree_1); the rest: every case, once
+    assert len(table) == 6 + 1 + 2 + 1 + 2 + 1 + 3 * len(cases)
+    assert set(table.loc[table["label"] == "diffSDF-style (2 views)", "case"]) == {"cup_1", "building_1"}
     assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]
     assert set(diff["case"]) == {"cup_1", "cup_t2", "building_1"} and sorted(diff["seed"]) == [0, 0, 0, 1, 1, 1]
