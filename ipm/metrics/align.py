@@ -202,8 +202,9 @@ def shape_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 
     resolution through one ray casting scene; if alignment does not raise the full-resolution
     IoU (it was chosen on coarser views), the unaligned result with the identity is returned,
     so ``shape_iou >= world_iou`` always. ``world_iou`` equals ``silhouette_iou``'s ``iou_mean``.
-    ``search_views`` and ``search_res`` are :func:`align_similarity`'s ``n_views`` and ``res``;
-    its other options pass through ``search``. ``masks``: :func:`silhouette_masks`'s result for
+    ``search_views`` and ``search_res`` are :func:`align_similarity`'s ``n_views`` and ``res``,
+    never more than the metric's own (a 16-view, 64 px smoke evaluation searches on those); its
+    other options pass through ``search``. ``masks``: :func:`silhouette_masks`'s result for
     the metric's arguments, if already cast (the reference's and the unaligned mesh's are reused).
 
     Returns
@@ -218,7 +219,8 @@ def shape_iou(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 
     centre, radius = bounding_sphere(reference)
     if len(fine.faces) == 0:
         return _shape_dict(0.0, 0.0, 0.0, _result(0.0, np.zeros(3), 1.0, np.zeros(3), 0.0, 0.0, 0), radius)
-    align = align_similarity(reference, fine, search_views, search_res, fov_deg=fov_deg, **search)
+    align = align_similarity(reference, fine, min(search_views, n_views), min(search_res, res), fov_deg=fov_deg,
+                             **search)
     if masks is None:
         cams = fibonacci_cameras(centre, radius, n_views, fov_deg)
         ref = raycast_masks(reference, cams, res, fov_deg)
