@@ -207,13 +207,15 @@ def markdown(summary: pd.DataFrame, metric: str = "iou_mean") -> str:
 
 
 def build_table(metrics: list[str], table_csv: str, wide_csv: str, summary_csv: str | None = None,
-                markdown_path: str | None = None) -> pd.DataFrame:
+                markdown_path: str | None = None, cases: list[str] | None = None) -> pd.DataFrame:
     """Collect metrics into ``table_csv`` (long), ``summary_csv`` (over seeds and cases),
-    ``wide_csv`` (label x case mean IoU, aggregates last) and ``markdown_path``."""
+    ``wide_csv`` (label x case mean IoU, aggregates last; the case columns in the order of
+    ``cases``, the configured one, where given) and ``markdown_path``."""
     df = long_table(metrics)
     summary = summary_table(df)
     wide = summary.pivot_table(index="label", columns="case", values="iou_mean", aggfunc="first", dropna=False)
-    cases = list(df["case"].drop_duplicates())
+    present = list(df["case"].drop_duplicates())
+    cases = [c for c in cases or () if c in present] + [c for c in present if c not in (cases or ())]
     aggs = [c for c in summary["case"].drop_duplicates() if c not in cases]
     wide = wide.reindex(index=list(df["label"].drop_duplicates()), columns=cases + aggs)  # failed runs: NaN ("-")
     with atomic_path(table_csv) as tmp:

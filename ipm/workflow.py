@@ -138,11 +138,11 @@ def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, thr
         parts_sheet(reference, mesh, transforms, png)
 
 
-def table_step(metrics: list[str], table: str, wide: str, summary: str, markdown: str, log=None):
+def table_step(metrics: list[str], table: str, wide: str, summary: str, markdown: str, cases=None, log=None):
     with _logged(log, 1):
         from ipm.table import build_table
 
-        build_table(metrics, table, wide, summary, markdown)
+        build_table(metrics, table, wide, summary, markdown, cases=cases)
 
 
 def report_step(table: str, wide: str, summary: str, metrics: list[str], out: str, config: dict, input_dirs: dict,

@@ -35,7 +35,8 @@ def tables(tmp_path):
     files += [_run(tmp_path, "vh_2v", "hull", "baseline", "cup_1", 0, None, "no points"),
               _run(tmp_path, "vh_2v", "hull", "baseline", "cup_ext", 0, 0.5)]
     out = {k: str(tmp_path / f"{k}.csv") for k in ("long", "wide", "summary")}
-    build_table(files, out["long"], out["wide"], out["summary"], str(tmp_path / "table1.md"))
+    build_table(files, out["long"], out["wide"], out["summary"], str(tmp_path / "table1.md"),
+                cases=["cup_ext", "cup_1", "cup_t1", "cup_t2", "cup_goblet", "cup_99"])
     return (pd.read_csv(out["long"]), pd.read_csv(out["summary"]), pd.read_csv(out["wide"], index_col=0),
             (tmp_path / "table1.md").read_text())
 
@@ -52,6 +53,9 @@ def test_per_case_lines_give_mean_std_and_worst_over_seeds(tables):
 
 def test_aggregates_are_means_over_the_cases_of_a_class_split_and_family(tables):
     _, summary, wide, md = tables
+    # the cases in the configured order (one configured but never run left out), aggregates after
+    assert list(wide.columns)[:5] == ["cup_ext", "cup_1", "cup_t1", "cup_t2", "cup_goblet"]
+    assert all("/" in c for c in list(wide.columns)[5:])
     agg = summary[summary["label"] == "ours"].set_index("case")
     assert agg.loc["cups/test/in", "iou_mean"] == pytest.approx((0.85 + 0.96) / 2, abs=1e-4)
     assert agg.loc["cups/test/out", "iou_mean"] == pytest.approx(0.8, abs=1e-4)

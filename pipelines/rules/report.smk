@@ -19,6 +19,8 @@ rule table:
         "logs/table.log",
     benchmark:
         "logs/benchmark/table.tsv"
+    params:
+        cases=config["cases"],
     conda:
         "../envs/ipm.yaml"
     threads: 1

@@ -1,4 +1,5 @@
 from ipm.workflow import table_step
 
 table_step(metrics=list(snakemake.input.metrics), table=snakemake.output.table, wide=snakemake.output.wide,
-           summary=snakemake.output.summary, markdown=snakemake.output.markdown, log=snakemake.log[0])
+           summary=snakemake.output.summary, markdown=snakemake.output.markdown,
+           cases=list(snakemake.params.cases), log=snakemake.log[0])
