@@ -19,14 +19,14 @@ rule table:
         "logs/table.log",
     benchmark:
         "logs/benchmark/table.tsv"
-    params:
-        cases=config["cases"],
     conda:
         "../envs/ipm.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=10,
+    params:
+        cases=config["cases"],
     script:
         "../scripts/table.py"
 
