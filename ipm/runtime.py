@@ -145,8 +145,8 @@ def _start_xla_cpu(threads: int) -> None:
     """
     if threads == 1:
         # one thread computes on the calling thread: JAX's CPU client otherwise runs each program on
-        # a thread of its own while Python goes on tracing the next, two cores busy (a one-thread
-        # smoke fit whose programs came from the cache: 17.3 s of CPU in 14.7 s of wall)
+        # a thread of its own while Python goes on tracing the next (a warm one-thread smoke fit
+        # with this: 4.9 s of CPU in 4.9 s of wall; XLA's compiler still uses two threads at times)
         import jax
 
         jax.config.update("jax_cpu_enable_async_dispatch", False)

@@ -214,8 +214,8 @@ def build_table(metrics: list[str], table_csv: str, wide_csv: str, summary_csv: 
     df = long_table(metrics)
     summary = summary_table(df)
     wide = summary.pivot_table(index="label", columns="case", values="iou_mean", aggfunc="first", dropna=False)
-    present = list(df["case"].drop_duplicates())
-    cases = [c for c in cases or () if c in present] + [c for c in present if c not in (cases or ())]
+    present, order = list(df["case"].drop_duplicates()), list(cases or [])
+    cases = [c for c in order if c in present] + [c for c in present if c not in order]
     aggs = [c for c in summary["case"].drop_duplicates() if c not in cases]
     wide = wide.reindex(index=list(df["label"].drop_duplicates()), columns=cases + aggs)  # failed runs: NaN ("-")
     with atomic_path(table_csv) as tmp:

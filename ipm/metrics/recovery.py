@@ -90,12 +90,10 @@ def parameter_recovery(case: dict, params: dict | None, reference_height: float,
     for objects that look the same turned, ``Generator.yaw_symmetric``), translation error over
     the reference's height, size error in percent (the world heights of reconstruction and
     reference). Empty for out-of-family cases, baselines and other generators."""
-    if not params or params.get("generator") != case["source"].get("generator"):  # no generator import then
+    made_by = case["source"].get("generator")
+    if not params or made_by is None or params.get("generator") != made_by:  # before importing the generators
         return {}
-    truth = true_parameters(case)
-    if truth is None or params.get("generator") != truth[0].name:
-        return {}
-    gen, x_true = truth
+    gen, x_true = true_parameters(case)
     spec = gen.spec
     x_rec = spec.clip(spec.from_dict(params["params"]))
     on = gen.active(x_true) | gen.active(x_rec)
