@@ -82,6 +82,26 @@ def test_config_cases_narrow_every_row(tmp_path):
     assert "ga_1v" not in out  # the GA row lists only trees
 
 
+def test_other_seeds_of_a_compiling_method_wait_for_the_first(tmp_path):
+    """The diff path's second seed of a case runs after its first (it reads the programs the first
+    compiled) and the GA's beside it (nothing to share); a rerun of the first seed alone is not a
+    reason to rerun the second (``ancient``)."""
+    rc, out = dry_run(tmp_path, "profile: smoke\nprepare_seed: 0\ncases: [cup_1, tree_1]\nseeds: [0, 1]\n"
+                                "methods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1, cases: [tree_1]}]\n")
+    assert rc == 0, out[-3000:]
+    jobs = {}  # each reconstruction's output -> its inputs
+    for block in out.split("rule reconstruct:\n")[1:]:
+        fields = dict(line.strip().split(": ", 1) for line in block.splitlines()[:2])
+        jobs[fields["output"]] = fields["input"].split(", ")
+    run = "results/reconstruct/{}/s{}".format
+    assert run("diff_1v/cup_1", 0) in jobs[run("diff_1v/cup_1", 1)]
+    assert run("diff_1v/cup_1", 1) not in jobs[run("diff_1v/cup_1", 0)]
+    assert run("ga_1v/tree_1", 0) not in jobs[run("ga_1v/tree_1", 1)] and len(jobs) == 4
+    from ipm.methods import METHODS
+
+    assert METHODS["diff"].compiles and not METHODS["ga"].compiles
+
+
 def test_the_default_config_reads_the_shipped_preparations(tmp_path):
     """The default run trains nothing: its learned rows, the diff path's learned start and the GA
     read the files the package ships (the same weights on every machine; the other configs make

@@ -102,10 +102,8 @@ def method_name(wildcards):
 
 def reconstruct_priority(wildcards):
     """The longest methods first (the GA, instant-NGP-style, then ours): a long job started last
-    ends the run alone. Within a method, a case's first seed before its others, which then read
-    the programs it compiled back from JAX's cache instead of compiling them beside it."""
-    m = method_of(wildcards)
-    return 2 * METHODS[m["name"]].length + (int(wildcards.seed) == method_seeds(m, wildcards.case)[0])
+    ends the run alone."""
+    return METHODS[method_of(wildcards)["name"]].length
 
 
 def method_views(wildcards):
@@ -153,9 +151,14 @@ def method_inputs(wildcards):
     """Inputs of a reconstruction: its views, and the method's preparation file for the case's
     generator and the run's seed if it has a preparation stage (the GA's gene statistics, made once
     per generator and seed, so the spread over seeds includes theirs; with ``prepare_seed`` set, one
-    file made with that seed serves every seed)."""
+    file made with that seed serves every seed). For a method that compiles its programs per case
+    (``Method.compiles``), a seed other than the case's first also waits for the first seed's run,
+    then reads them from JAX's cache; ``ancient``: a rerun of the first seed alone reruns no other."""
     m = method_of(wildcards)
     out = {"views": method_views_dir(wildcards)}
+    first = method_seeds(m, wildcards.case)[0]
+    if METHODS[m["name"]].compiles and int(wildcards.seed) != first:
+        out["first_seed"] = ancient(f"results/reconstruct/{wildcards.row}/{wildcards.case}/s{first}")
     stage = preparation(m)
     if stage is not None:
         seed = wildcards.seed if config["prepare_seed"] is None else config["prepare_seed"]
