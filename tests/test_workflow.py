@@ -31,19 +31,14 @@ def test_lint_is_clean():
 
 @pytest.mark.parametrize("config", slow_except(["default", "smoke", "paper", "benchmark"], "default", "smoke", "paper"))
 def test_dry_run_plans_every_stage(config, tmp_path):
-    """Each config plans a job of every stage (Snakemake's job counts by rule: the benchmark's
-    12,000 jobs printed one by one took half of its dry run)."""
-    res = snakemake("-n", "--quiet", "rules", "--cores", "2", "--configfile",
-                    str(ROOT / f"pipelines/config/{config}.yaml"), "--directory", str(tmp_path))
+    res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
+                    "--directory", str(tmp_path))
     assert res.returncode == 0, res.stdout + res.stderr
-    stats = res.stdout[res.stdout.rindex("Job stats:"):].split("\n\n")[0].splitlines()[3:]
-    jobs = {name: int(count) for name, count in (line.split() for line in stats)}
     for rule in ("reference", "synth", "reconstruct", "reference_line", "evaluate", "parts_preview", "table", "report",
                  "report_check"):
-        assert jobs[rule] > 0, rule
+        assert f"rule {rule}:" in res.stdout
     # the trainings and the GA's statistics: made in the run, but read from the shipped files by default
-    assert ("prepare" in jobs) == (config != "default")
-    assert jobs["total"] == sum(n for name, n in jobs.items() if name != "total")
+    assert ("rule prepare:" in res.stdout) == (config != "default")
 
 
 def dry_run(tmp_path, config_text: str):
