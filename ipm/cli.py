@@ -106,7 +106,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--generator", required=True, help="generator name (dishes, trees, buildings)")
     g.add_argument("--params", required=True, help="params.json of a reconstruction, or {name: value}")
     g.add_argument("--lod", type=int, default=1, help="level of detail")
-    g.add_argument("--out", required=True, help="output mesh (.glb: parts, materials, normals, parameters; .ply)")
+    g.add_argument("--out", required=True, help="output mesh (.glb: parts, materials, normals, parameters; .ply; "
+                   ".json: a building's CityJSON 2.0 city model, LoD 2.2)")
+    g.add_argument("--format", default=None, choices=("glb", "ply", "cityjson"), help="default: from --out's suffix")
     g.add_argument("--world", action="store_true", help="apply the reconstruction's pose (default: upright at the origin)")
 
     for sp in (r, b):
@@ -246,9 +248,10 @@ def _run(args) -> int:
     elif args.command == "generate":
         from ipm.generate import generate
 
-        info = generate(args.generator, args.params, args.lod, args.out, world=args.world)
+        info = generate(args.generator, args.params, args.lod, args.out, world=args.world, fmt=args.format)
         parts = ", ".join(f"{k} {v}" for k, v in info["parts"].items())
-        print(f"{args.out}: {info['triangles']} triangles ({parts})")
+        size = f"{info['triangles']} triangles" if "triangles" in info else f"{info['surfaces']} surfaces"
+        print(f"{args.out}: {size} ({parts})")
     elif args.command == "reference-line":
         from ipm.reference_lines import write_reference_line
 

@@ -61,8 +61,13 @@ def posed(vertices: np.ndarray, pose: dict) -> np.ndarray:
     return float(pose["scale"]) * vertices @ rot.T + t
 
 
-def generate(generator: str, params: str | Path, lod: int, out: str | Path, world: bool = False) -> dict:
-    """Write the mesh of ``params`` at ``lod`` to ``out`` (.glb or .ply, atomically); returns a summary."""
+FORMATS = {".glb": "glb", ".ply": "ply", ".json": "cityjson"}
+
+
+def generate(generator: str, params: str | Path, lod: int, out: str | Path, world: bool = False,
+             fmt: str | None = None) -> dict:
+    """Write the mesh of ``params`` at ``lod`` to ``out`` (atomically) as ``fmt`` (glb, ply, or
+    cityjson: a building's LoD 2.2 city model; default: from the suffix); returns a summary."""
     from ipm.generators import get_generator
     from ipm.io import save_glb, save_ply
 
@@ -70,9 +75,12 @@ def generate(generator: str, params: str | Path, lod: int, out: str | Path, worl
     if lod not in gen.lods:
         raise UserError(f"{generator} has levels of detail {', '.join(map(str, gen.lods))}, not {lod}")
     suffix = Path(out).suffix.lower()
-    if suffix not in (".glb", ".ply"):
-        raise UserError(f"--out must end in .glb or .ply, got {out}")
+    fmt = fmt or FORMATS.get(suffix)
+    if fmt not in FORMATS.values() or FORMATS.get(suffix) != fmt:
+        raise UserError(f"--out must end in .glb, .ply or .json (cityjson), matching --format; got {out}")
     x, pose = read_params(params, generator)
+    if fmt == "cityjson":
+        return _city_json(gen, x, lod, out, world)
     mesh = gen.mesh(x, lod)
     vertices, normals = mesh.vertices, mesh.normals
     if world:
@@ -80,7 +88,7 @@ def generate(generator: str, params: str | Path, lod: int, out: str | Path, worl
             raise UserError(f"{params} has no pose (--world needs a reconstruction's params.json)")
         vertices = posed(vertices, pose)
         normals = posed(normals, {**pose, "translation": [0.0, 0.0, 0.0], "scale": 1.0})
-    if suffix == ".glb":
+    if fmt == "glb":
         save_glb(out, vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv, normals=normals,
                  extras={"generator": generator, "lod": lod, "params": gen.spec.as_dict(x),
                          **({"pose": pose} if world else {})})
@@ -88,3 +96,19 @@ def generate(generator: str, params: str | Path, lod: int, out: str | Path, worl
         save_ply(out, vertices, mesh.faces, mesh.labels)
     parts = {name: int(np.sum(mesh.labels == k)) for k, name in enumerate(mesh.part_names)}
     return {"triangles": int(len(mesh.faces)), "parts": {k: v for k, v in parts.items() if v}}
+
+
+def _city_json(gen, x: np.ndarray, lod: int, out: str | Path, world: bool) -> dict:
+    """``gen``'s city model of ``x`` at level ``lod`` written to ``out``; a summary of its surfaces."""
+    from ipm.io.cityjson import write_city_json
+
+    if world:
+        raise UserError("CityJSON is written in the building's own frame (metres, ground at z = 0): drop --world")
+    doc = gen.city_model(x, lod)
+    if doc is None:
+        raise UserError(f"{gen.name} has no city model: CityJSON is written for buildings")
+    write_city_json(out, doc)
+    part = doc["CityObjects"]["building-part-0"]["geometry"][0]
+    kinds = [s["type"] for s in part["semantics"]["surfaces"]]
+    counts = {k: part["semantics"]["values"][0].count(i) for i, k in enumerate(kinds)}
+    return {"surfaces": int(len(part["boundaries"][0])), "parts": counts}

@@ -93,7 +93,7 @@ def test_bad_options_give_one_line(tmp_path):
     out = tmp_path / "mesh.glb"
     for args, message in ((["--lod", "7"], "levels of detail 0, 1, 2, not 7"),
                           (["--world"], "has no pose"),
-                          (["--out", str(tmp_path / "mesh.obj")], "must end in .glb or .ply")):
+                          (["--out", str(tmp_path / "mesh.obj")], "must end in .glb, .ply or .json")):
         res = ipm("generate", "--generator", "dishes", "--params", str(params), "--out", str(out), *args)
         assert message in _one_line_error(res)
     assert not out.exists()

@@ -201,6 +201,12 @@ class Generator:
         return [n for n in self.counts
                 if n not in self.facing or (d @ (rot @ np.asarray(self.facing[n]))).max() > SEEN_COS]
 
+    def city_model(self, x: np.ndarray, lod: int = 1) -> dict | None:
+        """The object ``x`` at level of detail ``lod`` as a CityJSON 2.0 document
+        (``ipm.io.cityjson``), for generators of things city models hold (buildings); None for the
+        others (the default)."""
+        return None
+
     def topology_key(self, x: np.ndarray) -> tuple:
         """The discrete parameter values that decide the topology."""
         raise NotImplementedError

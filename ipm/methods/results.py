@@ -40,9 +40,25 @@ def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], in
             save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
                      normals=mesh.normals, extras={k: info[k] for k in GLB_EXTRAS if k in info})
         write_json(tmp / info_file, info)
+        if labelled and not failed and "generator" in info and "params" in info:
+            _write_city_model(tmp, info)
         if trace is not None:
             trace.to_csv(tmp / "trace.csv", index=False)
         write_json(tmp / "timing.json", times)
         for name, write in (extra_files or {}).items():
             write(tmp / name)
     return info
+
+
+CITY_MODEL = "building.city.json"
+
+
+def _write_city_model(folder: Path, info: dict) -> None:
+    """The result's CityJSON city model beside its mesh, where its generator makes one (buildings)."""
+    from ipm.generators import get_generator
+    from ipm.io.cityjson import write_city_json
+
+    gen = get_generator(info["generator"])
+    doc = gen.city_model(gen.spec.from_dict(info["params"]))
+    if doc is not None:
+        write_city_json(folder / CITY_MODEL, doc)
