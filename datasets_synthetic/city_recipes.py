@@ -1,0 +1,127 @@
+"""Buildings of the shapes real ones take and the buildings generator does not make, for the test
+split's out-of-family cases: a U-shaped block round a courtyard, a cross-gabled house, a barn under
+a gambrel roof and a tower under a pyramidal roof. Independent code as in
+:mod:`datasets_synthetic.recipes` (boxes and convex hulls, no generator code), registered in its
+``RECIPES``; each part closed, wound outwards; labels wall, window, roof, door."""
+from __future__ import annotations
+
+import numpy as np
+
+from datasets_synthetic.more_recipes import _centred
+from datasets_synthetic.recipes import RECIPES, _box, _facade_openings, _gable_roof, _hull
+from ipm.io.semantic import BUILDING_LABELS
+
+
+def _door(centre, size) -> list:
+    """A door leaf standing proud of a wall facing +-z at ``centre`` (on the ground)."""
+    c = np.asarray(centre, float)
+    return [_box(c + [-0.5 * size[0], 0.0, -0.012], c + [0.5 * size[0], size[1], 0.012])]
+
+
+def _flat_roof(x0, x1, z0, z1, base, slab=0.04, parapet=0.06, rail=0.02) -> list:
+    """A flat roof's slab over [x0, x1] x [z0, z1] and the four parapet walls round its edge."""
+    top = base + slab
+    return [_box([x0, base, z0], [x1, top, z1]),
+            _box([x0, top, z0], [x1, top + parapet, z0 + rail]), _box([x0, top, z1 - rail], [x1, top + parapet, z1]),
+            _box([x0, top, z0 + rail], [x0 + rail, top + parapet, z1 - rail]),
+            _box([x1 - rail, top, z0 + rail], [x1, top + parapet, z1 - rail])]
+
+
+@RECIPES.register("courtyard_block")
+def courtyard_block(width=1.8, depth=1.3, wing=0.45, floors=3, storey=0.3, window=(0.11, 0.15), spacing=0.24,
+                    sill=0.08, door=(0.16, 0.25)):
+    """A U-shaped block of flats round a courtyard open to the front: a back wing along x and two
+    side wings coming forward from its ends, all ``floors`` storeys under one flat roof with a
+    parapet; windows on every outer and courtyard wall, the door in the courtyard's back."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    back_z = -hz + wing  # the back wing's courtyard face
+    walls = [_box([-hx, 0, -hz], [hx, h, back_z]), _box([-hx, 0, back_z - 0.01], [-hx + wing, h, hz]),
+             _box([hx - wing, 0, back_z - 0.01], [hx, h, hz])]
+    roofs = (_flat_roof(-hx, hx, -hz, back_z, h) + _flat_roof(-hx, -hx + wing, back_z, hz, h)
+             + _flat_roof(hx - wing, hx, back_z, hz, h))
+    panes = []
+    walls_out = (([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1]), ([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0]),
+                 ([hx, 0, hz], [hx, 0, -hz], [1, 0, 0]), ([-hx, 0, hz], [-hx + wing, 0, hz], [0, 0, 1]),
+                 ([hx - wing, 0, hz], [hx, 0, hz], [0, 0, 1]),
+                 ([-hx + wing, 0, hz], [-hx + wing, 0, back_z], [1, 0, 0]),
+                 ([hx - wing, 0, back_z], [hx - wing, 0, hz], [-1, 0, 0]))
+    for a, b, n in walls_out:
+        panes += _facade_openings(a, b, n, floors, storey, window, spacing, sill)
+    inner = 2 * (hx - wing)
+    panes += _facade_openings([-hx + wing, 0, back_z], [hx - wing, 0, back_z], [0, 0, 1], floors, storey, window,
+                              spacing, sill, skip=lambda a: abs(a - 0.5 * inner) < 0.5 * spacing)
+    doors = _door([0.0, 0.0, back_z], door)
+    return _centred(walls, roofs, panes, doors)
+
+
+courtyard_block.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("cross_gabled_house")
+def cross_gabled_house(width=1.1, depth=1.0, floors=2, storey=0.32, roof_height=0.38, overhang=0.05,
+                       window=(0.12, 0.16), spacing=0.28, sill=0.08, door=(0.15, 0.25)):
+    """A near-square two-storey house under two gable roofs of one height crossing at right angles
+    (four gables, one per wall): the union of a gable along x and one along z."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    walls = [_box([-hx, 0, -hz], [hx, h, hz])]
+    roofs = [_gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang),
+             _gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang, ridge_along_z=True)]
+    panes = []
+    for a, b, n in (([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1]), ([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0]),
+                    ([hx, 0, hz], [hx, 0, -hz], [1, 0, 0])):
+        panes += _facade_openings(a, b, n, floors, storey, window, spacing, sill)
+    panes += _facade_openings([-hx, 0, hz], [hx, 0, hz], [0, 0, 1], floors, storey, window, spacing, sill,
+                              skip=lambda a: abs(a - hx) < 0.5 * spacing)
+    doors = _door([0.0, 0.0, hz], door)
+    return _centred(walls, roofs, panes, doors)
+
+
+cross_gabled_house.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("gambrel_barn")
+def gambrel_barn(width=0.9, length=1.7, wall_height=0.38, knee=0.3, knee_in=0.14, ridge=0.22, overhang=0.04,
+                 window=(0.1, 0.12), spacing=0.34, sill=0.14, door=(0.36, 0.42)):
+    """A barn along z under a gambrel roof: each side a steep lower slope up to the knee
+    (``knee`` higher, ``knee_in`` inwards) and a shallow upper one to the ridge (``ridge`` higher
+    again); a wide door in the front gable, small windows along the sides."""
+    hx, hz = 0.5 * width, 0.5 * length
+    walls = [_box([-hx, 0, -hz], [hx, wall_height, hz])]
+    ex, z0, z1 = hx + overhang, -hz - overhang, hz + overhang
+    section = [(-ex, wall_height), (-hx + knee_in, wall_height + knee), (0.0, wall_height + knee + ridge),
+               (hx - knee_in, wall_height + knee), (ex, wall_height)]
+    roofs = [_hull([[x, y, z] for x, y in section for z in (z0, z1)])]
+    panes = []
+    for sign in (-1, 1):
+        panes += _facade_openings([sign * hx, 0, -sign * hz], [sign * hx, 0, sign * hz], [sign, 0, 0], 1, 0.3,
+                                  window, spacing, sill)
+    panes += _facade_openings([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1], 1, 0.3, window, 0.3, sill)
+    doors = _door([0.0, 0.0, hz], door)
+    return _centred(walls, roofs, panes, doors)
+
+
+gambrel_barn.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("pyramid_tower")
+def pyramid_tower(side=0.7, floors=5, storey=0.3, roof_height=0.5, overhang=0.05, window=(0.11, 0.16),
+                  spacing=0.22, sill=0.08, door=(0.15, 0.25)):
+    """A square tower of ``floors`` storeys under a pyramidal roof (four triangular slopes to one
+    apex): windows on every storey of every side, a door in the front."""
+    h, s = floors * storey, 0.5 * side
+    walls = [_box([-s, 0, -s], [s, h, s])]
+    e = s + overhang
+    roofs = [_hull([[x, h, z] for x in (-e, e) for z in (-e, e)] + [[0.0, h + roof_height, 0.0]])]
+    panes = []
+    for a, b, n in (([s, 0, -s], [-s, 0, -s], [0, 0, -1]), ([-s, 0, -s], [-s, 0, s], [-1, 0, 0]),
+                    ([s, 0, s], [s, 0, -s], [1, 0, 0])):
+        panes += _facade_openings(a, b, n, floors, storey, window, spacing, sill)
+    panes += _facade_openings([-s, 0, s], [s, 0, s], [0, 0, 1], floors, storey, window, spacing, sill,
+                              skip=lambda a: abs(a - s) < 0.5 * spacing)
+    doors = _door([0.0, 0.0, s], door)
+    return _centred(walls, roofs, panes, doors)
+
+
+pyramid_tower.semantic_labels = BUILDING_LABELS
