@@ -18,6 +18,17 @@ def _door(centre, size) -> list:
     return [_box(c + [-0.5 * size[0], 0.0, -0.012], c + [0.5 * size[0], size[1], 0.012])]
 
 
+def _box_facades(hx, hz, floors, storey, window, spacing, sill) -> list:
+    """Panes on the four walls of the block [-hx, hx] x [-hz, hz], every storey, the front's
+    (+z) middle left for the door."""
+    panes = []
+    for a, b, n in (([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1]), ([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0]),
+                    ([hx, 0, hz], [hx, 0, -hz], [1, 0, 0])):
+        panes += _facade_openings(a, b, n, floors, storey, window, spacing, sill)
+    return panes + _facade_openings([-hx, 0, hz], [hx, 0, hz], [0, 0, 1], floors, storey, window, spacing, sill,
+                                    skip=lambda a: abs(a - hx) < 0.5 * spacing)
+
+
 def _flat_roof(x0, x1, z0, z1, base, slab=0.04, parapet=0.06, rail=0.02) -> list:
     """A flat roof's slab over [x0, x1] x [z0, z1] and the four parapet walls round its edge."""
     top = base + slab
@@ -68,14 +79,8 @@ def cross_gabled_house(width=1.1, depth=1.0, floors=2, storey=0.32, roof_height=
     walls = [_box([-hx, 0, -hz], [hx, h, hz])]
     roofs = [_gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang),
              _gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang, ridge_along_z=True)]
-    panes = []
-    for a, b, n in (([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1]), ([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0]),
-                    ([hx, 0, hz], [hx, 0, -hz], [1, 0, 0])):
-        panes += _facade_openings(a, b, n, floors, storey, window, spacing, sill)
-    panes += _facade_openings([-hx, 0, hz], [hx, 0, hz], [0, 0, 1], floors, storey, window, spacing, sill,
-                              skip=lambda a: abs(a - hx) < 0.5 * spacing)
-    doors = _door([0.0, 0.0, hz], door)
-    return _centred(walls, roofs, panes, doors)
+    panes = _box_facades(hx, hz, floors, storey, window, spacing, sill)
+    return _centred(walls, roofs, panes, _door([0.0, 0.0, hz], door))
 
 
 cross_gabled_house.semantic_labels = BUILDING_LABELS
@@ -114,14 +119,8 @@ def pyramid_tower(side=0.7, floors=5, storey=0.3, roof_height=0.5, overhang=0.05
     walls = [_box([-s, 0, -s], [s, h, s])]
     e = s + overhang
     roofs = [_hull([[x, h, z] for x in (-e, e) for z in (-e, e)] + [[0.0, h + roof_height, 0.0]])]
-    panes = []
-    for a, b, n in (([s, 0, -s], [-s, 0, -s], [0, 0, -1]), ([-s, 0, -s], [-s, 0, s], [-1, 0, 0]),
-                    ([s, 0, s], [s, 0, -s], [1, 0, 0])):
-        panes += _facade_openings(a, b, n, floors, storey, window, spacing, sill)
-    panes += _facade_openings([-s, 0, s], [s, 0, s], [0, 0, 1], floors, storey, window, spacing, sill,
-                              skip=lambda a: abs(a - s) < 0.5 * spacing)
-    doors = _door([0.0, 0.0, s], door)
-    return _centred(walls, roofs, panes, doors)
+    panes = _box_facades(s, s, floors, storey, window, spacing, sill)
+    return _centred(walls, roofs, panes, _door([0.0, 0.0, s], door))
 
 
 pyramid_tower.semantic_labels = BUILDING_LABELS
