@@ -8,14 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from datasets_synthetic.more_recipes import _centred
-from datasets_synthetic.recipes import RECIPES, _box, _facade_openings, _gable_roof, _hull
+from datasets_synthetic.recipes import RECIPES, _box, _door, _facade_openings, _gable_roof, _hull
 from ipm.io.semantic import BUILDING_LABELS
-
-
-def _door(centre, size) -> list:
-    """A door leaf standing proud of a wall facing +-z at ``centre`` (on the ground)."""
-    c = np.asarray(centre, float)
-    return [_box(c + [-0.5 * size[0], 0.0, -0.012], c + [0.5 * size[0], size[1], 0.012])]
 
 
 def _box_facades(hx, hz, floors, storey, window, spacing, sill) -> list:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from datasets_synthetic.recipes import (_DOOR, _ROOF, _WALL, _WINDOW, RECIPES, _assemble, _box, _closed_tubes,
+from datasets_synthetic.recipes import (_DOOR, _ROOF, _WALL, _WINDOW, RECIPES, _assemble, _box, _closed_tubes, _door,
                                         _facade_openings, _gable_roof, _hull, _revolved)
 from ipm.io.semantic import BUILDING_LABELS
 
@@ -91,8 +91,7 @@ def house_with_annex(width=1.1, depth=0.8, floors=2, storey=0.33, roof_height=0.
     panes += _facade_openings([-hx, 0, -hz], [-hx, 0, hz], [-1, 0, 0], floors, storey, window, spacing, sill)
     panes += _facade_openings([hx + annex_width, 0, az], [hx + annex_width, 0, -az], [1, 0, 0], 1, storey, window,
                               spacing, sill)
-    dc = np.array([hx + 0.5 * annex_width, 0.0, az])
-    doors = [_box(dc + [-0.5 * door[0], 0.0, -0.012], dc + [0.5 * door[0], door[1], 0.012])]
+    doors = _door([hx + 0.5 * annex_width, 0.0, az], door)
     return _centred(walls, roofs, panes, doors)
 
 
@@ -124,8 +123,7 @@ def t_house(width=1.5, depth=0.6, floors=2, storey=0.32, roof_height=0.3, wing_w
     front = hz + wing_depth
     panes += _facade_openings([-wx, 0, front], [wx, 0, front], [0, 0, 1], wing_floors, storey, window, spacing,
                               sill, skip=lambda a: abs(a - wx) < 0.5 * spacing)
-    dc = np.array([0.0, 0.0, front])
-    doors = [_box(dc + [-0.5 * door[0], 0.0, -0.012], dc + [0.5 * door[0], door[1], 0.012])]
+    doors = _door([0.0, 0.0, front], door)
     return _centred(walls, roofs, panes, doors)
 
 

@@ -603,6 +603,12 @@ def _facade_openings(start, end, normal, floors: int, storey: float, size, spaci
     return panes
 
 
+def _door(centre, size) -> list:
+    """A door leaf standing proud of a wall facing +-z at ``centre`` (on the ground)."""
+    c = np.asarray(centre, float)
+    return [_box(c + [-0.5 * size[0], 0.0, -0.012], c + [0.5 * size[0], size[1], 0.012])]
+
+
 @RECIPES.register("l_shaped_house")
 def l_shaped_house(width=1.5, depth=0.8, wing_width=0.65, wing_depth=0.75, floors=2, storey=0.34,
                    roof_height=0.32, overhang=0.06, window=(0.13, 0.17), spacing=0.3, sill=0.09,
@@ -625,8 +631,7 @@ def l_shaped_house(width=1.5, depth=0.8, wing_width=0.65, wing_depth=0.75, floor
     panes += _facade_openings([hx, 0, wz1], [hx, 0, -hz], [1, 0, 0], floors, storey, window, spacing, sill)
     panes += _facade_openings([wx0, 0, wz1], [hx, 0, wz1], [0, 0, 1], floors, storey, window, spacing, sill)
     panes += _facade_openings([wx0, 0, hz], [wx0, 0, wz1], [-1, 0, 0], floors, storey, window, spacing, sill)
-    dc = np.array([door_a, 0.0, hz])
-    doors = [_box(dc + [-0.5 * door[0], 0.0, -0.012], dc + [0.5 * door[0], door[1], 0.012])]
+    doors = _door([door_a, 0.0, hz], door)
     parts = walls + roofs + panes + doors
     labels = [_WALL] * len(walls) + [_ROOF] * len(roofs) + [_WINDOW] * len(panes) + [_DOOR] * len(doors)
     return _assemble(parts, labels)
@@ -699,7 +704,7 @@ def row_houses(widths=(0.7, 0.55), floors=(3, 2), depth=0.8, storey=0.32, roof_h
         back = _facade_openings([x + w, 0, -hz], [x, 0, -hz], [0, 0, -1], n, storey, window, spacing, sill)
         parts += front + back
         labels += [_WINDOW] * (len(front) + len(back))
-        parts.append(_box([x + door_a - 0.5 * door[0], 0, hz - 0.012], [x + door_a + 0.5 * door[0], door[1], hz + 0.012]))
+        parts += _door([x + door_a, 0.0, hz], door)
         labels.append(_DOOR)
         x += w
     return _assemble(parts, labels)

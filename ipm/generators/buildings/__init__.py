@@ -227,12 +227,11 @@ class Buildings(Generator):
         ix = self.spec.index
         roof = int(round(float(x[ix["roof_type"]])))
         top = float(wall_top(lambda k: x[ix[k]]))
-        roof_height = float(x[ix["roof_height"]]) if roof != FLAT else 0.0
+        rise = float(x[ix["roof_thickness" if roof == FLAT else "roof_height"]])  # the roof over the walls' top
         shape = ("flat", "gabled", "hipped")[roof]
         attributes = {"roofType": shape, "roof:shape": shape, "building:levels": int(round(float(x[ix["floors"]]))),
-                      "roof:height": round(roof_height * METRES_PER_UNIT, 3),
-                      "height": round((top + (roof_height if roof != FLAT else float(x[ix["roof_thickness"]])))
-                                      * METRES_PER_UNIT, 3)}
+                      "roof:height": 0.0 if roof == FLAT else round(rise * METRES_PER_UNIT, 3),
+                      "height": round((top + rise) * METRES_PER_UNIT, 3)}
         return city_model(mesh.vertices, mesh.faces[keep], np.array([roles[k] for k in mesh.labels[keep]], object),
                           attributes, lod={0: "2.0", 1: "2.2"}.get(lod, "3"))
 
