@@ -1,6 +1,6 @@
-"""CityJSON 2.0 out: a building's city model is schema-valid, read by cjio, one closed solid with
-ground, wall and roof surfaces whose volume is the union of its solids; written beside every
-buildings result and by ``ipm generate --format cityjson``."""
+"""CityJSON 2.0 out: a building's city model is schema-valid, read by cjio, one closed solid per
+wing with ground, wall and roof surfaces whose volumes add up to the union of its solids; written
+beside every buildings result and by ``ipm generate --format cityjson``."""
 from __future__ import annotations
 
 import json
@@ -11,12 +11,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 from ipm.generators import get_generator
 from ipm.io.cityjson import METRES_PER_UNIT, schema_errors, solid_volume
 
 GEN = get_generator("buildings")
-CASES = {**GEN.presets, **{f"sample_{s}": GEN.sample(np.random.default_rng(s)) for s in range(3)}}
+CASES = {**GEN.presets, **{f"sample_{s}": GEN.sample(np.random.default_rng(s)) for s in range(3)},
+         "u_and_annex": GEN.spec.from_dict({"template": 3, "annex": 1, "roof_type": 1, "wing1_roof": 2, "wing2_roof": 7,
+                                            "wing3_roof": 0, "wing1_floors": 2, "wing2_floors": 1, "wing3_floors": 1,
+                                            "wing3_shift": 0.1}, GEN.presets["house"])}
 
 
 @pytest.fixture(scope="module")
@@ -29,43 +33,67 @@ def _points(doc):
     return np.asarray(doc["vertices"], np.float64) * t["scale"] + t["translate"]
 
 
-def _surfaces(doc):
-    geometry = doc["CityObjects"]["building-part-0"]["geometry"][0]
+def _parts(doc) -> list[str]:
+    return [k for k, o in doc["CityObjects"].items() if o["type"] == "BuildingPart"]
+
+
+def _surfaces(doc, part: str = "building-part-0"):
+    geometry = doc["CityObjects"][part]["geometry"][0]
     kinds = [s["type"] for s in geometry["semantics"]["surfaces"]]
     return list(zip(geometry["boundaries"][0], (kinds[i] for i in geometry["semantics"]["values"][0])))
 
 
-def _closed(doc) -> bool:
+def _closed(doc, part: str) -> bool:
     """Every edge of every ring walked once each way: the rings share the shell's edges."""
-    edges = Counter((a, b) for surface, _ in _surfaces(doc) for ring in surface for a, b in zip(ring, ring[1:] + ring[:1]))
+    edges = Counter((a, b) for surface, _ in _surfaces(doc, part) for ring in surface
+                    for a, b in zip(ring, ring[1:] + ring[:1]))
     return all(count == 1 and edges[(b, a)] == 1 for (a, b), count in edges.items())
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_the_city_model_is_valid_cityjson_and_one_closed_solid(models, name):
+def test_the_city_model_is_valid_cityjson_and_one_closed_solid_per_wing(models, name):
     doc = models[name]
     assert schema_errors(doc) == []
     assert all(isinstance(c, int) for v in doc["vertices"] for c in v)
-    assert Counter(o["type"] for o in doc["CityObjects"].values()) == {"Building": 1, "BuildingPart": 1}
-    assert _closed(doc)
-    assert solid_volume(doc) > 0  # outward: counter-clockwise outer rings seen from outside
-    kinds = {kind for _, kind in _surfaces(doc)}
-    assert {"GroundSurface", "WallSurface", "RoofSurface"} <= kinds
+    wings = GEN._structure(GEN.topology_key(CASES[name]))["wings"]
+    assert Counter(o["type"] for o in doc["CityObjects"].values()) == {"Building": 1, "BuildingPart": 1 + len(wings)}
+    assert doc["CityObjects"]["building"]["children"] == _parts(doc)
     pts = _points(doc)
-    for surface, kind in _surfaces(doc):
-        ring = pts[surface[0]]
-        normal = np.cross(ring - ring.mean(0), np.roll(ring, -1, 0) - ring.mean(0)).sum(0)
-        normal /= np.linalg.norm(normal)
-        assert np.abs((ring - ring[0]) @ normal).max() < 2e-3  # planar to the millimetre's rounding
-        if kind == "GroundSurface":
-            assert normal[2] < -0.99 and np.allclose(ring[:, 2], 0.0)
-        if kind == "RoofSurface":
-            assert normal[2] > 0.05
-        if kind == "WallSurface":
-            assert abs(normal[2]) <= 0.05
+    for part in _parts(doc):
+        assert _closed(doc, part)
+        assert solid_volume(doc, part) > 0  # outward: counter-clockwise outer rings seen from outside
+        kinds = {kind for _, kind in _surfaces(doc, part)}
+        assert {"GroundSurface", "WallSurface", "RoofSurface"} <= kinds
+        for surface, kind in _surfaces(doc, part):
+            ring = pts[surface[0]]
+            normal = np.cross(ring - ring.mean(0), np.roll(ring, -1, 0) - ring.mean(0)).sum(0)
+            normal /= np.linalg.norm(normal)
+            assert np.abs((ring - ring[0]) @ normal).max() < 2e-3  # planar to the millimetre's rounding
+            if kind == "GroundSurface":
+                assert normal[2] < -0.99 and np.allclose(ring[:, 2], 0.0)
+            if kind == "RoofSurface":
+                assert normal[2] > 0.05
+            if kind == "WallSurface":
+                assert abs(normal[2]) <= 0.05
 
 
-@pytest.mark.parametrize("name", ["house", "tower", "sample_0"])
+def test_the_wings_parts_do_not_overlap_and_fill_the_building(models):
+    """The parts' volumes add up to the union of every solid (each wing less the main wing), and
+    each wing carries its own roof shape and storeys."""
+    from ipm.io.cityjson import union_shell
+
+    x, doc = CASES["u_and_annex"], models["u_and_annex"]
+    mesh = GEN.mesh(x, 1)
+    keep = np.isin(mesh.labels, [0, 2, 3])  # walls, frames, roof: the shell
+    v, tri, _ = union_shell(mesh.vertices, mesh.faces[keep], np.full(keep.sum(), "wall", object))
+    union = trimesh.Trimesh(v, tri).volume * METRES_PER_UNIT ** 3
+    assert sum(solid_volume(doc, part) for part in _parts(doc)) == pytest.approx(union, rel=1e-4)
+    shapes = [doc["CityObjects"][part]["attributes"]["roof:shape"] for part in _parts(doc)]
+    assert shapes == ["gabled", "hipped", "gambrel", "flat"]
+    assert [doc["CityObjects"][part]["attributes"]["building:levels"] for part in _parts(doc)] == [2, 2, 1, 1]
+
+
+@pytest.mark.parametrize("name", ["house", "tower", "u_and_annex"])
 def test_cjio_reads_the_written_files(models, name, tmp_path):
     """cjio (its command line, in a process of its own: importing cjio replaces the json module's
     float encoder for the whole process) reads the file as CityJSON 2.0 with the building and its part."""
@@ -76,7 +104,8 @@ def test_cjio_reads_the_written_files(models, name, tmp_path):
     res = subprocess.run([str(Path(sys.executable).with_name("cjio")), str(path), "info"], capture_output=True,
                          text=True, timeout=60)
     assert res.returncode == 0, res.stderr
-    assert "CityJSON version = 2.0" in res.stdout and "Building (1)" in res.stdout and "BuildingPart (1)" in res.stdout
+    parts = len(_parts(models[name]))
+    assert "CityJSON version = 2.0" in res.stdout and "Building (1)" in res.stdout and f"BuildingPart ({parts})" in res.stdout
 
 
 def test_a_flat_roofed_block_has_the_volume_of_its_solids(models):
@@ -117,7 +146,7 @@ def test_level_three_has_a_window_surface_per_window_and_the_doors():
     the entrances' ``Door`` surfaces, still one closed solid (the boolean's zero-area slivers
     folded into their neighbours' rings)."""
     doc = GEN.city_model(CASES["tower"], 3)
-    assert schema_errors(doc) == [] and _closed(doc)
+    assert schema_errors(doc) == [] and _closed(doc, "building-part-0")
     assert doc["CityObjects"]["building-part-0"]["geometry"][0]["lod"] == "3"
     kinds = Counter(kind for _, kind in _surfaces(doc))
     x = GEN.spec.as_dict(CASES["tower"])

@@ -16,6 +16,7 @@ import pytest
 from ipm.errors import UserError
 from ipm.generate import generate
 from ipm.generators import get_generator
+from ipm.generators.buildings.table import ROOF_KINDS
 from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
@@ -36,6 +37,9 @@ from ipm.render.edges import pyramid_loss
 from ipm.render.silhouette import SilhouetteRenderer, _pyramid_loss
 from tests.conftest import synthesized
 from tests.test_generate import VALIDATOR, _glb_json
+
+KINDS = len(ROOF_KINDS) - 1
+"""The roof type's largest value: its unit coordinate is the kind over this."""
 
 
 def roof_settings(**overrides):
@@ -303,12 +307,12 @@ def test_decide_tries_every_kind_of_roof():
     z = problem.initial_z(gen.spec.to_unit(x), 0.3)
 
     def lowest_at(value):
-        return lambda v, seed=None: ((v[i] * 2 - value) ** 2, np.zeros_like(v))
+        return lambda v, seed=None: ((v[i] * KINDS - value) ** 2, np.zeros_like(v))
 
     best = decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=2))
-    assert round(best[i] * 2) == 2
+    assert round(best[i] * KINDS) == 2
     np.testing.assert_array_equal(np.delete(best, i), np.delete(z, i))  # no gradient: nothing else moved
-    assert round(decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=0))[i] * 2) == 0
+    assert round(decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=0))[i] * KINDS) == 0
 
 
 def test_decide_race_gives_a_descending_candidate_more_steps():
@@ -330,13 +334,13 @@ def test_decide_race_gives_a_descending_candidate_more_steps():
         return float((v[w] - target) ** 2), g
 
     def score(v, seed=None):
-        roof = round(v[i] * 2)
+        roof = round(v[i] * KINDS)
         return (1.0 if roof == 0 else 0.03 if roof == 1 else abs(v[w] - target)), np.zeros_like(v)
 
     kinds = []
     for rounds in (1, 3):
         best = decide(trial(problem, walk, score), z, roof_settings(decide_steps=3, decide_rounds=rounds))
-        kinds.append(round(best[i] * 2))
+        kinds.append(round(best[i] * KINDS))
     assert kinds == [1, 2]
 
 
@@ -351,7 +355,7 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
     x[ix["roof_type"]], x[ix["width"]], x[ix["depth"]] = 2, 1.2, 0.8
     z = problem.initial_z(gen.spec.to_unit(x), 0.3)
     want = turned(problem, z, np.pi / 2)
-    want[ix["roof_type"]] = 0.5  # a gable
+    want[ix["roof_type"]] = 1 / KINDS  # a gable
 
     def score(v, seed=None):
         return float(np.sum((v - want) ** 2)), np.zeros_like(v)
@@ -361,12 +365,12 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
     best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof,
                   recount=lambda v: recounted.append(v) or v)
     np.testing.assert_allclose(best, want)
-    assert len(recounted) == 3
+    assert len(recounted) == KINDS + 1
     back = gen.spec.from_unit(best[:n])
     assert (back[ix["width"]], back[ix["depth"]]) == pytest.approx((0.8, 1.2))
     assert np.angle(np.exp(1j * (best[n] - z[n]))) == pytest.approx(np.pi / 2)
     plain = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof)
-    assert plain[n] == z[n] and round(plain[ix["roof_type"]] * 2) == 1
+    assert plain[n] == z[n] and round(plain[ix["roof_type"]] * KINDS) == 1
 
 
 def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
@@ -387,14 +391,15 @@ def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
         return y[ix["roof_height"]] / (walls + y[ix["roof_height"]])
 
     def score(v, seed=None):
-        return float(abs(share(v) - 0.6) + (round(v[ix["roof_type"]] * 2) != 2)), np.zeros_like(v)
+        return float(abs(share(v) - 0.6) + (round(v[ix["roof_type"]] * KINDS) != 2)), np.zeros_like(v)
 
     prof = roof_settings(decide_steps=1, decide_shares=(0.3, 0.6))
     best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
                         record=lambda name, loss: names.append(name)), z, prof, recount=lambda v: v)
-    assert round(best[ix["roof_type"]] * 2) == 2 and share(best) == pytest.approx(0.6)
-    first = names[:14]
-    assert first[:2] == ["roof_type=0", "roof_type=0 turned"] and len(first) == len(set(first)) == 14
+    assert round(best[ix["roof_type"]] * KINDS) == 2 and share(best) == pytest.approx(0.6)
+    candidates = 2 + (KINDS * 3) * 2  # flat as it stands and turned; each pitched kind, with two shares, and turned
+    first = names[:candidates]
+    assert first[:2] == ["roof_type=0", "roof_type=0 turned"] and len(first) == len(set(first)) == candidates
     assert {"roof_type=2 roof 0.6", "roof_type=2 roof 0.6 turned", "roof_type=1 roof 0.3"} <= set(first)
     assert not any(name.startswith("roof_type=0 roof") for name in names)
 

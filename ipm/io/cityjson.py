@@ -1,5 +1,5 @@
-"""CityJSON 2.0 out: a building as city models exchange it (a ``Building`` with a ``BuildingPart``,
-one closed ``Solid`` at LoD 2.2 with ground, wall and roof surfaces).
+"""CityJSON 2.0 out: a building as city models exchange it (a ``Building`` with a ``BuildingPart``
+per wing, each one closed ``Solid`` at LoD 2.2 with ground, wall and roof surfaces).
 
 The generator's closed solids (walls, cornice, roof, chimney) are joined into one watertight shell
 by a real mesh boolean (manifold3d); the shell's triangles are merged back into the planar
@@ -24,17 +24,15 @@ _Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 """Object frame (x, y up, z towards the entrance) to CityJSON's (x, y, z up), right-handed."""
 
 
-def union_shell(vertices: np.ndarray, faces: np.ndarray, roles: np.ndarray):
-    """One watertight shell from the closed solids of ``faces`` (triangles over ``vertices``;
-    each edge-connected set of faces one solid) by manifold3d's union: its vertices, triangles
-    (counter-clockwise seen from outside) and each triangle's role (``roles``, per input face,
-    of the solid it came from)."""
+def _closed_solids(vertices: np.ndarray, faces: np.ndarray, roles: np.ndarray, role_of: dict) -> list:
+    """manifold3d solids of the closed solids of ``faces`` (each edge-connected set of faces one
+    solid), each solid's role (``roles``, per face) recorded in ``role_of`` by its original id."""
     import manifold3d as mf
     import trimesh
 
     labels = trimesh.graph.connected_component_labels(trimesh.Trimesh(vertices, faces, process=False).face_adjacency,
                                                       node_count=len(faces))
-    solids, role_of = [], {}
+    solids = []
     for k in np.unique(labels):
         tri = faces[labels == k]
         used, local = np.unique(tri, return_inverse=True)
@@ -45,7 +43,21 @@ def union_shell(vertices: np.ndarray, faces: np.ndarray, roles: np.ndarray):
         solid = solid.as_original()
         role_of[solid.original_id()] = roles[labels == k][0]
         solids.append(solid)
-    shell = mf.Manifold.batch_boolean(solids, mf.OpType.Add).to_mesh()
+    return solids
+
+
+def union_shell(vertices: np.ndarray, faces: np.ndarray, roles: np.ndarray, cut=None):
+    """One watertight shell from the closed solids of ``faces`` (triangles over ``vertices``) by
+    manifold3d's union, less the union of the solids of ``cut`` (faces, roles) if given: its
+    vertices, triangles (counter-clockwise seen from outside) and each triangle's role (``roles``,
+    per input face, of the solid it came from; a cut face takes the role of the solid that cut it)."""
+    import manifold3d as mf
+
+    role_of = {}
+    shell = mf.Manifold.batch_boolean(_closed_solids(vertices, faces, roles, role_of), mf.OpType.Add)
+    if cut is not None and len(cut[0]):
+        shell = shell - mf.Manifold.batch_boolean(_closed_solids(vertices, *cut, role_of), mf.OpType.Add)
+    shell = shell.to_mesh()
     tri = np.asarray(shell.tri_verts, np.int64)
     tri_role = np.empty(len(tri), object)
     starts = np.asarray(shell.run_index, np.int64) // 3
@@ -150,44 +162,51 @@ def surface_type(role: str, normal: np.ndarray, lowest: float, height: float) ->
     return "WallSurface"
 
 
-def city_model(vertices: np.ndarray, faces: np.ndarray, roles: np.ndarray, attributes: dict,
+def city_model(vertices: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray, dict]], attributes: dict,
                title: str = "ipm building", lod: str = "2.2") -> dict:
-    """A CityJSON 2.0 document: one ``Building`` (with ``attributes``) whose ``BuildingPart`` is
-    the union of the closed solids of ``faces`` (object frame, generator units; ``roles`` per face:
-    'wall', 'roof', 'window' or 'door') as a semantic ``Solid`` at ``lod``."""
-    v, tri, tri_role = union_shell(vertices, faces, roles)
-    polys = polygons(v, tri, tri_role)
-    city = (v @ _Y_UP_TO_Z_UP.T) * METRES_PER_UNIT
+    """A CityJSON 2.0 document: one ``Building`` (with ``attributes``) with a ``BuildingPart`` per
+    entry of ``parts`` (faces over ``vertices``, object frame, generator units; each face's role:
+    'wall', 'roof', 'window' or 'door'; the part's attributes): the union of its closed solids
+    less the earlier parts', as a semantic ``Solid`` at ``lod``; a part left empty is dropped."""
+    shells, before = [], (np.zeros((0, 3), np.int64), np.zeros(0, object))
+    for faces, roles, part_attributes in parts:
+        v, tri, tri_role = union_shell(vertices, faces, roles, cut=before)
+        before = (np.concatenate([before[0], faces]), np.concatenate([before[1], roles]))
+        if len(tri):
+            shells.append((v, tri, tri_role, part_attributes))
+    everything = np.concatenate([v for v, *_ in shells])
+    city = (everything @ _Y_UP_TO_Z_UP.T) * METRES_PER_UNIT
     translate = city.min(0)
     ints = np.round((city - translate) / MILLIMETRE).astype(np.int64)
     ints, remap = np.unique(ints, axis=0, return_inverse=True)  # vertices within a millimetre merged
-    remap = remap.ravel()
-    lowest = v[:, 1].min()
-    surfaces, kinds, values = [], [], []
-    for rings, role, normal in polys:
-        kept = []
-        for ring in rings:
-            ids = [int(remap[i]) for i in ring]
-            ids = [a for a, b in zip(ids, ids[1:] + ids[:1]) if a != b]
-            if len(ids) >= 3:
-                kept.append(ids)
-        if not kept:
-            continue
-        kind = surface_type(role, normal, lowest, float(v[rings[0], 1].min()))
-        if kind not in kinds:
-            kinds.append(kind)
-        surfaces.append(kept)
-        values.append(kinds.index(kind))
-    part = {"type": "BuildingPart", "parents": ["building"], "attributes": dict(attributes),
+    remap, offset = remap.ravel(), 0
+    lowest = everything[:, 1].min()
+    objects = {"building": {"type": "Building", "attributes": dict(attributes),
+                            "children": [f"building-part-{k}" for k in range(len(shells))]}}
+    for k, (v, tri, tri_role, part_attributes) in enumerate(shells):
+        surfaces, kinds, values = [], [], []
+        for rings, role, normal in polygons(v, tri, tri_role):
+            kept = []
+            for ring in rings:
+                ids = [int(remap[offset + i]) for i in ring]
+                ids = [a for a, b in zip(ids, ids[1:] + ids[:1]) if a != b]
+                if len(ids) >= 3:
+                    kept.append(ids)
+            if not kept:
+                continue
+            kind = surface_type(role, normal, lowest, float(v[rings[0], 1].min()))
+            if kind not in kinds:
+                kinds.append(kind)
+            surfaces.append(kept)
+            values.append(kinds.index(kind))
+        offset += len(v)
+        objects[f"building-part-{k}"] = {
+            "type": "BuildingPart", "parents": ["building"], "attributes": dict(part_attributes),
             "geometry": [{"type": "Solid", "lod": lod, "boundaries": [surfaces],
-                          "semantics": {"surfaces": [{"type": k} for k in kinds], "values": [values]}}]}
+                          "semantics": {"surfaces": [{"type": t} for t in kinds], "values": [values]}}]}
     return {"type": "CityJSON", "version": "2.0",
             "transform": {"scale": [MILLIMETRE] * 3, "translate": [float(t) for t in translate]},
-            "metadata": {"title": title},
-            "CityObjects": {"building": {"type": "Building", "attributes": dict(attributes),
-                                         "children": ["building-part-0"]},
-                            "building-part-0": part},
-            "vertices": ints.tolist()}
+            "metadata": {"title": title}, "CityObjects": objects, "vertices": ints.tolist()}
 
 
 def schema_errors(doc: dict) -> list[str]:

@@ -1,13 +1,16 @@
-"""Buildings generator (the paper's third class, Figure 6): floors, window layouts, entrances,
-balconies and roof shapes, in four levels of detail.
+"""Buildings generator (the paper's third class, Figure 6): a main wing and up to three more
+(the L, T and U plans and an annex), floors, window layouts, entrances, balconies and nine roof
+kinds per wing, in four levels of detail.
 
 Everything is built from closed solids whose corners are affine in the parameters (boxes, and a
-six-vertex prism for gable and hip roofs; ``solids``), so every part is watertight and the vertex
+ten-vertex solid for every pitched roof; ``solids``), so every part is watertight and the vertex
 positions are a pure JAX function with a Jacobian; the discrete parameters (floors, windows per
-facade, entrances, window split, roof type, balconies, chimney, steps) decide which solids exist.
-The parameter table is ``table``; the body over the footprint ``footprint``, the facades and their
-openings ``facades``, the roofs ``roofs``; this module is the generator the search asks (its
-topology, positions, the facades and counts its moves read, its presets).
+facade, entrances, window split, roof kinds, balconies, chimney, steps, plan, annex, each wing's
+storeys and windows) decide which solids exist. The wings' solids overlap the main wing's: the
+renderer's depth test makes their union while fitting. The parameter table is ``table``; the body
+over the footprint and the wings ``footprint``, the facades and their openings ``facades``, the
+roofs ``roofs``; this module is the generator the search asks (its topology, positions, the
+facades and counts its moves read, its presets).
 
 Object frame: y up, ground at y = 0, the entrance facade facing +z, the footprint centred on the
 y axis. Units: about 10 m per unit (a floor is 0.25-0.45 tall); pose scale carries the size.
@@ -27,11 +30,13 @@ import numpy as np
 
 from ipm.generators.base import GENERATORS, Generator, Topology
 from ipm.generators.buildings.facades import FACADES, facade_boxes
-from ipm.generators.buildings.footprint import core_solids, cornice_and_balconies
+from ipm.generators.buildings.footprint import core_solids, cornice_and_balconies, wing_solids
 from ipm.generators.buildings.roofs import roof_solids
 from ipm.generators.buildings.solids import TEMPLATES, Solids
-from ipm.generators.buildings.table import (BALCONIES, DISCRETE, DOOR, FLAT, FRAMES, GABLE, HIP, PARTS, ROOF, SPEC,
-                                            WALLS, WINDOWS, wall_top)
+from ipm.generators.buildings.table import (BALCONIES, DISCRETE, DOOR, FLAT, FRAMES, GABLE, GAMBREL, HALF_HIP, HIP,
+                                            L_PLAN, MANSARD, PARTS, RECTANGLE, ROOF, ROOF_KINDS, ROOF_WEIGHTS,
+                                            SALTBOX, SPEC, T_PLAN, U_PLAN,
+                                            WALLS, WINDOWS, WINGS, wall_top, wing_top)
 from ipm.io.semantic import BUILDING_LABELS
 
 __all__ = ["Buildings", "PARTS", "WALLS", "WINDOWS", "FRAMES", "ROOF", "DOOR", "BALCONIES", "FLAT", "GABLE", "HIP"]
@@ -64,7 +69,8 @@ class Buildings(Generator):
     moves = ("read", "polish", "recentre", "roof", "sight", "place", "read again")
     """Counts read off the window masks, polish, re-centring, the roof race, the line-of-sight and the
     chimney sweeps (``ipm.search.moves``)."""
-    ratios = ("side_window_scale", "ground_window_scale", "hip_ratio", "balcony_width", "chimney_x", "chimney_z")
+    ratios = ("side_window_scale", "ground_window_scale", "hip_ratio", "knee_height", "knee_run", "ridge_offset",
+              "balcony_width", "chimney_x", "chimney_z")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in FACADES.items()}
     presets = {}  # filled below from named edits of the defaults
@@ -76,6 +82,8 @@ class Buildings(Generator):
         s = dict(zip(DISCRETE, key))
         s["balcony_floors"] = (list(range(1, s["floors"])) if s["balconies"] == 1 else
                                list(range(s["balcony_start"], s["floors"])) if s["balconies"] == 2 else [])
+        s["wings"] = [k for k, on in zip(WINGS, (s["template"] >= L_PLAN, s["template"] == U_PLAN, s["annex"] == 1)) if on]
+        s["roofs"] = {s["roof_type"], *(s[f"wing{k}_roof"] for k in s["wings"])}
         return s
 
     def change_count(self, x, name, value):
@@ -141,37 +149,65 @@ class Buildings(Generator):
         """A random plausible building (the sampler of in-family cases), not a preset: footprint
         0.7-1.8 by 0.6-1.4, 1-6 storeys (fewer more likely), windows per facade from the facade's
         length and a spacing of 0.18-0.4 (a blank side wall with probability 1/3), 1-2 entrances,
-        any roof type, balconies on every storey or from one up with probability 1/2, a chimney on
-        half the pitched roofs; every other parameter uniform over its range."""
+        balconies on every storey or from one up with probability 1/2, a chimney on half the
+        pitched roofs; the roof kind by OpenStreetMap's counts tempered by a square root
+        (:data:`ROOF_WEIGHTS`), the plan a rectangle (0.4), an L (0.25), a T (0.15) or a U (0.2),
+        an annex with probability 1/4; each wing as tall as the main wing or a storey lower (the
+        annex any height up to it), of the main roof's kind with probability 0.6 and its pitch;
+        every other parameter uniform over its range."""
         spec, ix = self.spec, self.spec.index
         x = spec.from_unit(rng.random(len(spec)))
         w, d = rng.uniform(0.7, 1.8), rng.uniform(0.6, 1.4)
         floors = int(rng.choice(np.arange(1, 7), p=np.array([3, 4, 3, 2, 1, 1]) / 14))
         spacing = rng.uniform(0.18, 0.4)
+        roof = int(rng.choice(len(ROOF_KINDS), p=ROOF_WEIGHTS))
         values = {"width": w, "depth": d, "floors": floors, "floor_height": rng.uniform(0.28, 0.4),
                   "window_width": rng.uniform(0.08, 0.6 * spacing), "window_margin": rng.uniform(0.05, 0.15),
-                  "entrances": int(rng.choice([1, 1, 2])), "roof_type": int(rng.integers(3)),
+                  "entrances": int(rng.choice([1, 1, 2])), "roof_type": roof,
                   "balconies": int(rng.choice([0, 0, 1, 2])) if floors > 1 else 0,
-                  "balcony_start": int(rng.integers(1, max(floors - 1, 1) + 1)), "steps": int(rng.integers(0, 3))}
+                  "balcony_start": int(rng.integers(1, max(floors - 1, 1) + 1)), "steps": int(rng.integers(0, 3)),
+                  "template": int(rng.choice(4, p=[0.4, 0.25, 0.15, 0.2])), "annex": int(rng.random() < 0.25)}
         for facade, length in (("front", w), ("back", w), ("left", d), ("right", d)):
             blank = facade in ("left", "right") and rng.random() < 1 / 3
             values[f"windows_{facade}"] = 0 if blank else int(np.clip(round(length / spacing), 1, 8))
         values["windows_front"] = max(values["windows_front"] - values["entrances"], 0)
-        values["chimney"] = int(values["roof_type"] != FLAT and rng.random() < 0.5)
+        values["chimney"] = int(roof != FLAT and rng.random() < 0.5)
+        pitch = x[ix["roof_height"]] / (0.5 * d)
+        for k in WINGS:
+            across = (min(0.45 * w, 1.2) if values["template"] == U_PLAN else min(0.8 * w, 1.2)) if k < 3 else 0.8 * d
+            width, length = rng.uniform(0.3, max(across, 0.3)), rng.uniform(0.25, 0.9)
+            wing_roof = roof if rng.random() < 0.6 else int(rng.choice(len(ROOF_KINDS), p=ROOF_WEIGHTS))
+            values |= {f"wing{k}_width": width, f"wing{k}_length": length, f"wing{k}_shift": rng.uniform(-0.1, 0.1),
+                       f"wing{k}_floors": int(rng.integers(max(floors - 1, 1), floors + 1)) if k < 3
+                       else int(rng.integers(1, floors + 1)),
+                       f"wing{k}_roof": wing_roof, f"wing{k}_roof_height": pitch * 0.5 * width * rng.uniform(0.8, 1.2),
+                       f"wing{k}_windows": int(np.clip(round(length / spacing), 0, 8)),
+                       f"wing{k}_end_windows": int(np.clip(round(width / spacing), 0, 8))}
         for name, v in values.items():
             x[ix[name]] = v
         return spec.clip(x)
 
     def active(self, x):
-        """Parameters of parts the object does not have are inert (a flat roof's slope, ...)."""
+        """Parameters of parts the object does not have are inert (a flat roof's slope, an absent
+        wing, a gambrel's knee on a house without one, ...)."""
         s = self._structure(self.topology_key(x))
+        roofs, wings = s["roofs"], s["wings"]
         off = set()
         if s["roof_type"] == FLAT:
             off.add("roof_height")
-        else:
+        if FLAT not in roofs:
             off |= {"roof_thickness", "parapet_height"}
-        if s["roof_type"] != HIP:
+        if not roofs & {HIP, HALF_HIP, MANSARD}:
             off.add("hip_ratio")
+        if not roofs & {GAMBREL, MANSARD}:
+            off |= {"knee_height", "knee_run"}
+        if SALTBOX not in roofs:
+            off.add("ridge_offset")
+        for k in WINGS:
+            if k not in wings:
+                off |= {name for name in self.spec.names if name.startswith(f"wing{k}_")}
+            elif s[f"wing{k}_roof"] == FLAT:
+                off.add(f"wing{k}_roof_height")
         if not s["balcony_floors"]:
             off |= {"balcony_depth", "balcony_width", "balcony_thickness", "railing_height"}
         if s["balconies"] != 2:
@@ -212,28 +248,55 @@ class Buildings(Generator):
         if lod >= 1:
             cornice_and_balconies(out, p, top, inset, lod)
         roof_solids(out, p, top, lod)
+        wing_solids(out, p, inset, lod)
         return out
 
     def city_model(self, x, lod: int = 1):
-        """The walls, cornice, roof and chimney of level ``lod`` joined into one solid (balconies are
-        installations, not the shell): CityJSON's LoD 2.0 from level 0, 2.2 from level 1, 3 from
-        levels 2 and 3 (windows and doors as their own surfaces in the facades' recesses, frames as
-        wall); OpenStreetMap's roof shape, storeys and heights."""
+        """The walls, cornice, roof and chimney of level ``lod`` joined into one solid per wing (the
+        main wing's, then each wing's less what the earlier ones hold; balconies are installations,
+        not the shell): CityJSON's LoD 2.0 from level 0, 2.2 from level 1, 3 from levels 2 and 3
+        (windows and doors as their own surfaces in the facades' recesses, frames as wall);
+        OpenStreetMap's roof shape, storeys and heights per wing, the main wing's for the building."""
         from ipm.io.cityjson import METRES_PER_UNIT, city_model
 
-        mesh = self.mesh(x, lod)
-        roles = {WALLS: "wall", FRAMES: "wall", ROOF: "roof", WINDOWS: "window", DOOR: "door"}
-        keep = np.isin(mesh.labels, list(roles))
+        x = self.spec.clip(x)
         ix = self.spec.index
-        roof = int(round(float(x[ix["roof_type"]])))
-        top = float(wall_top(lambda k: x[ix[k]]))
-        rise = float(x[ix["roof_thickness" if roof == FLAT else "roof_height"]])  # the roof over the walls' top
-        shape = ("flat", "gabled", "hipped")[roof]
-        attributes = {"roofType": shape, "roof:shape": shape, "building:levels": int(round(float(x[ix["floors"]]))),
-                      "roof:height": 0.0 if roof == FLAT else round(rise * METRES_PER_UNIT, 3),
-                      "height": round((top + rise) * METRES_PER_UNIT, 3)}
-        return city_model(mesh.vertices, mesh.faces[keep], np.array([roles[k] for k in mesh.labels[keep]], object),
-                          attributes, lod={0: "2.0", 1: "2.2"}.get(lod, "3"))
+        vertices = np.asarray(self.positions_fn(None, lod)(jnp.asarray(x, jnp.float32)), np.float64)
+        roles = {WALLS: "wall", FRAMES: "wall", ROOF: "roof", WINDOWS: "window", DOOR: "door"}
+
+        def faces_with(template, annex):  # the shell's faces with the wings these values switch on
+            y = x.copy()
+            y[ix["template"]], y[ix["annex"]] = template, annex
+            topo = self.topology(self.topology_key(y), lod)
+            keep = np.isin(topo.labels, list(roles))
+            return {tuple(f): roles[k] for f, k in zip(topo.faces[keep].tolist(), topo.labels[keep])}
+
+        def attributes(roof, floors, top, rise):
+            shape = ROOF_KINDS[int(round(float(roof)))]
+            return {"roofType": shape, "roof:shape": shape, "building:levels": int(round(float(floors))),
+                    "roof:height": 0.0 if shape == "flat" else round(float(rise) * METRES_PER_UNIT, 3),
+                    "height": round(float(top + rise) * METRES_PER_UNIT, 3)}
+
+        def rise(roof, height):  # the roof over the walls' top
+            return x[ix["roof_thickness"]] if int(round(float(roof))) == FLAT else height
+
+        main = faces_with(RECTANGLE, 0)
+        layers = [(main, attributes(x[ix["roof_type"]], x[ix["floors"]], wall_top(lambda k: x[ix[k]]),
+                                    rise(x[ix["roof_type"]], x[ix["roof_height"]])))]
+        plan, annex = int(round(float(x[ix["template"]]))), int(round(float(x[ix["annex"]])))
+        wings = {1: (faces_with(T_PLAN, 0), main) if plan >= L_PLAN else None,
+                 2: (faces_with(U_PLAN, 0), faces_with(T_PLAN, 0)) if plan == U_PLAN else None,
+                 3: (faces_with(RECTANGLE, 1), main) if annex else None}
+        for k, pair in wings.items():
+            if pair is not None:
+                roof = x[ix[f"wing{k}_roof"]]
+                layers.append(({f: r for f, r in pair[0].items() if f not in pair[1]},
+                               attributes(roof, x[ix[f"wing{k}_floors"]], wing_top(lambda n: x[ix[n]], k),
+                                          rise(roof, x[ix[f"wing{k}_roof_height"]]))))
+        parts = [(np.array(list(faces), np.int64).reshape(-1, 3), np.array(list(faces.values()), object), attrs)
+                 for faces, attrs in layers]
+        return city_model(vertices, parts, layers[0][1] | {"height": max(a["height"] for _, a in layers)},
+                          lod={0: "2.0", 1: "2.2"}.get(lod, "3"))
 
     @lru_cache(maxsize=None)
     def _layout_fn(self, lod):

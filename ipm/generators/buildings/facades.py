@@ -23,16 +23,17 @@ def door_slots(n, n_doors, slots: int) -> jnp.ndarray:
     return jnp.any((at == j) & (k < n_doors), axis=0)
 
 
-def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int) -> None:
+def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int, wing: bool = False) -> None:
     """Walls, openings, glass, frames and mullions of one facade, every floor at once.
 
     Local coordinates: ``a`` along the facade (centred), ``y`` up, ``d`` into the building from
-    the wall plane. Arrays run over (floors, slots) at their largest counts; the front facade's
-    ground floor has the entrances among its windows, and steps and canopies before them.
+    the wall plane. Arrays run over (floors, slots) at their largest counts; the main wing's front
+    facade's ground floor has the entrances among its windows, and steps and canopies before them
+    (a ``wing``'s facades face the way ``facade`` names, with windows only, at their full scale).
     """
     along, normal = (np.asarray(v, np.float32) for v in FACADES[facade])
     up = np.array([0.0, 1.0, 0.0], np.float32)
-    front = facade == "front"
+    front = facade == "front" and not wing
 
     def put(part, a0, a1, y0, y1, d0, d1, valid):
         def world(a, y, d):
@@ -59,7 +60,7 @@ def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int)
     margin = jnp.minimum(p("window_margin"), half - 0.5 * MIN_PIER)
     slot = (length - 2 * margin) / jnp.maximum(n, 1.0)
     centre = -half + margin + (j + 0.5) * slot
-    scale = p("side_window_scale") if facade in ("left", "right") else 1.0
+    scale = p("side_window_scale") if facade in ("left", "right") and not wing else 1.0
     scale = jnp.where(ground, scale * p("ground_window_scale"), scale)
     w = jnp.where(is_door, jnp.minimum(p("door_width"), slot - MIN_PIER),
                   jnp.minimum(p("window_width") * scale, slot - MIN_PIER))

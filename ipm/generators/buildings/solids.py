@@ -1,4 +1,4 @@
-"""Closed solids with corners affine in the parameters: boxes and the six-vertex roof prism,
+"""Closed solids with corners affine in the parameters: boxes and the ten-vertex roof,
 collected per part at their largest counts with a flag saying which ones a building has."""
 from __future__ import annotations
 
@@ -9,15 +9,17 @@ import numpy as np
 BITS = np.array([[(c >> k) & 1 for k in range(3)] for c in range(8)], bool)
 BOX_FACES = np.array([[0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5], [0, 1, 5], [0, 5, 4],
                       [2, 6, 7], [2, 7, 3], [0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6]])
-# eaves corners 0-3 (counter-clockwise seen from above, from -x -z), ridge ends 4 (-x) and 5 (+x)
-ROOF_FACES = np.array([[0, 1, 2], [0, 2, 3], [3, 2, 5], [3, 5, 4], [1, 0, 4], [1, 4, 5],
-                       [0, 3, 4], [2, 1, 5]])
+# a roof: the five points of its cross-section (eave, knee, ridge, knee, eave) at its first end
+# (0-4) and at its other end (5-9); the bottom, the four slopes, the two ends cut into bands
+ROOF_FACES = np.array([[0, 9, 4], [0, 5, 9],
+                       *([k, k + 1, k + 6] for k in range(4)), *([k, k + 6, k + 5] for k in range(4)),
+                       [0, 4, 3], [0, 3, 1], [1, 3, 2], [5, 8, 9], [5, 6, 8], [6, 7, 8]])
 TEMPLATES = {"box": BOX_FACES, "roof": ROOF_FACES}
 
 
 class Solids:
     """Collects closed solids per part at their largest count, each with a flag saying whether
-    the building has it: boxes as (lo, hi) corner pairs, roofs as 6 vertices. Parts and flags may
+    the building has it: boxes as (lo, hi) corner pairs, roofs as 10 vertices (``ROOF_FACES``). Parts and flags may
     be traced values; the topology keeps the flagged solids, the positions function all of them,
     so one compiled function serves every topology of a level of detail."""
 
@@ -35,7 +37,7 @@ class Solids:
         self.groups.append(("box", jnp.broadcast_to(part, lead).ravel(), jnp.broadcast_to(valid, lead).ravel(),
                             jnp.where(BITS[None], hi[:, None, :], lo[:, None, :])))
 
-    def prism(self, part: int, vertices: jnp.ndarray, valid=True) -> None:
+    def roof(self, part: int, vertices: jnp.ndarray, valid=True) -> None:
         self.groups.append(("roof", jnp.full(1, part), jnp.reshape(valid, (1,)), vertices[None]))
 
 
