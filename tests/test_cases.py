@@ -147,7 +147,7 @@ def test_counts_are_compared_side_by_side_in_the_world():
     assert facade_match(gen, 1.0, 1.0 + math.pi / 2 + 0.3) == turned  # the nearest direction
     quarter = _params(case, yaw=math.radians(case["pose"]["yaw_deg"]) + math.pi / 2)
     quarter["params"].update(width=x[gen.spec.index["depth"]], depth=x[gen.spec.index["width"]])
-    assert parameter_recovery(case, quarter, 1.0, 1.0)["counts_exact"] == 0.0  # left 3 against the fit's back 5
+    assert parameter_recovery(case, quarter, 1.0, 1.0)["counts_exact"] == 0.0  # left 4 against the fit's back 5
     for name, fit_name in turned.items():
         quarter["params"][fit_name] = int(x[gen.spec.index[name]])
     assert parameter_recovery(case, quarter, 1.0, 1.0)["counts_exact"] == 1.0

@@ -240,11 +240,11 @@ class Buildings(Generator):
         core_solids(out, p, top, inset)
         if lod >= 2:
             side = d - 2 * inset  # side facades run between the front and back walls
-            for facade, length, origin in (("front", w, jnp.stack([0.0, 0.0, hz])),
-                                           ("back", w, jnp.stack([0.0, 0.0, -hz])),
-                                           ("right", side, jnp.stack([hx, 0.0, 0.0])),
-                                           ("left", side, jnp.stack([-hx, 0.0, 0.0]))):
-                facade_boxes(out, p, facade, length, origin, p(f"windows_{facade}"), lod)
+            facade_boxes(out, p, "front", w, jnp.stack([0.0, 0.0, hz]), p("windows_front"), lod)
+            others = ("back", "right", "left")  # no entrances: one set of arrays
+            facade_boxes(out, p, others, jnp.stack([w, side, side]),
+                         jnp.stack([jnp.stack([0.0, 0.0, -hz]), jnp.stack([hx, 0.0, 0.0]), jnp.stack([-hx, 0.0, 0.0])]),
+                         jnp.stack([p(f"windows_{f}") for f in others]), lod)
         if lod >= 1:
             cornice_and_balconies(out, p, top, inset, lod)
         roof_solids(out, p, top, lod)

@@ -23,17 +23,25 @@ def door_slots(n, n_doors, slots: int) -> jnp.ndarray:
     return jnp.any((at == j) & (k < n_doors), axis=0)
 
 
-def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int, wing: bool = False) -> None:
-    """Walls, openings, glass, frames and mullions of one facade, every floor at once.
+def facade_boxes(s: Solids, p, facade, length, origin, n_windows, lod: int, wing: bool = False) -> None:
+    """Walls, openings, glass, frames and mullions of one facade, every floor at once, or of
+    several (``facade`` a tuple of names; ``length``, ``origin``, ``n_windows`` and ``p("floors")``
+    one per facade) in one set of arrays, so that the compiled program does not grow with them.
 
     Local coordinates: ``a`` along the facade (centred), ``y`` up, ``d`` into the building from
-    the wall plane. Arrays run over (floors, slots) at their largest counts; the main wing's front
-    facade's ground floor has the entrances among its windows, and steps and canopies before them
-    (a ``wing``'s facades face the way ``facade`` names, with windows only, at their full scale).
+    the wall plane. Arrays run over (facades, floors, slots) at their largest counts; the main
+    wing's front facade's ground floor has the entrances among its windows, and steps and canopies
+    before them (a ``wing``'s facades face the way ``facade`` names, with windows only, at their
+    full scale).
     """
-    along, normal = (np.asarray(v, np.float32) for v in FACADES[facade])
+    names = (facade,) if isinstance(facade, str) else tuple(facade)
+    along, normal = (np.asarray([FACADES[n][k] for n in names], np.float32)[:, None, None, :] for k in (0, 1))
     up = np.array([0.0, 1.0, 0.0], np.float32)
-    front = facade == "front" and not wing
+    front = names == ("front",) and not wing
+    origin = jnp.reshape(origin, (-1, 1, 1, 3))
+
+    def col(v):  # one value per facade, against (facades, floors, slots)
+        return jnp.reshape(v, (-1, 1, 1))
 
     def put(part, a0, a1, y0, y1, d0, d1, valid):
         def world(a, y, d):
@@ -42,17 +50,18 @@ def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int,
 
         s.boxes(part, world(a0, y0, d0), world(a1, y1, d1), valid)
 
+    length = col(length)
     inset, half = p("window_inset"), 0.5 * length
     fh, g = p("floor_height"), p("ground_extra")
     n_slots = MAX_WINDOWS + (MAX_ENTRANCES if front else 0)
-    f = jnp.arange(MAX_FLOORS, dtype=jnp.float32)[:, None]  # (F, 1)
-    j = jnp.arange(n_slots, dtype=jnp.float32)[None, :]  # (1, S)
+    f = jnp.arange(MAX_FLOORS, dtype=jnp.float32)[None, :, None]  # (1, F, 1)
+    j = jnp.arange(n_slots, dtype=jnp.float32)[None, None, :]  # (1, 1, S)
     ground = f == 0
-    storey = f < p("floors")
+    storey = f < col(p("floors"))
     n_doors = p("entrances") if front else 0.0
     steps = p("steps") if front else 0.0
-    n = jnp.where(ground, n_windows + n_doors, n_windows)  # openings per floor (F, 1)
-    is_door = ground & door_slots(n_windows + n_doors, n_doors, n_slots)[None, :]  # (F, S)
+    n = jnp.where(ground, col(n_windows) + n_doors, col(n_windows))  # openings per floor (W, F, 1)
+    is_door = ground & (door_slots(n_windows + n_doors, n_doors, n_slots) if front else False)  # (W, F, S)
     opening = storey & (j < n)
     y_base = jnp.where(ground, 0.0, f * fh + g)
     y_top = (f + 1) * fh + g
@@ -60,7 +69,8 @@ def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int,
     margin = jnp.minimum(p("window_margin"), half - 0.5 * MIN_PIER)
     slot = (length - 2 * margin) / jnp.maximum(n, 1.0)
     centre = -half + margin + (j + 0.5) * slot
-    scale = p("side_window_scale") if facade in ("left", "right") and not wing else 1.0
+    scale = col(jnp.stack([p("side_window_scale") if n in ("left", "right") and not wing else jnp.float32(1.0)
+                           for n in names]))
     scale = jnp.where(ground, scale * p("ground_window_scale"), scale)
     w = jnp.where(is_door, jnp.minimum(p("door_width"), slot - MIN_PIER),
                   jnp.minimum(p("window_width") * scale, slot - MIN_PIER))
@@ -73,10 +83,10 @@ def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int,
     a0, a1 = centre - 0.5 * w, centre + 0.5 * w
     # piers between openings (full storey; pier k ends at the facade's edge when k = n), then the
     # wall below and above each opening
-    k = jnp.arange(n_slots + 1, dtype=jnp.float32)[None, :]
-    edge = jnp.full((MAX_FLOORS, 1), half)
-    pier_end = jnp.where(k == n, half, jnp.concatenate([a0, edge], 1))
-    put(WALLS, jnp.concatenate([-edge, a1], 1), pier_end, y_base, y_top, 0.0, inset, storey & (k <= n))
+    k = jnp.arange(n_slots + 1, dtype=jnp.float32)[None, None, :]
+    edge = jnp.broadcast_to(half, (len(names), MAX_FLOORS, 1))
+    pier_end = jnp.where(k == n, half, jnp.concatenate([a0, edge], -1))
+    put(WALLS, jnp.concatenate([-edge, a1], -1), pier_end, y_base, y_top, 0.0, inset, storey & (k <= n))
     put(WALLS, a0, a1, y_base, y0, 0.0, inset, opening & (~is_door | (steps > 0)))
     put(WALLS, a0, a1, y1, y_top, 0.0, inset, opening)
     # the pane: at level 2 (no frames) as much of it as level 3's frames leave visible, so the
@@ -99,8 +109,8 @@ def facade_boxes(s: Solids, p, facade: str, length, origin, n_windows, lod: int,
         put(FRAMES, mid_a - mw, mid_a + mw, y0, y1, back - 2 * GLASS, back, win & (p("window_split") >= 1))
         put(FRAMES, a0, a1, mid_y - mw, mid_y + mw, back - 2 * GLASS, back, win & (p("window_split") >= 2))
     if front:
-        door = is_door[0] & opening[0]
-        dl, dr, dt = a0[0], a1[0], y1[0]
+        door = is_door[0, 0] & opening[0, 0]
+        dl, dr, dt = a0[0, 0], a1[0, 0], y1[0, 0]
         if lod >= 2:
             m = jnp.arange(MAX_STEPS, dtype=jnp.float32)[:, None]  # the lowest step reaches farthest out
             put(WALLS, dl - 0.02, dr + 0.02, 0.0, door_y0 - m * p("step_height"), -(m + 1) * p("step_depth"),

@@ -73,23 +73,17 @@ def wing_solids(out: Solids, p, inset, lod: int) -> None:
     that roofs of one pitch meet as a straight skeleton's do."""
     o, co, ch = p("roof_overhang"), p("cornice_offset"), p("cornice_height")
     main_flat = p("roof_type") == FLAT
+    facades = []  # (name, length, origin, windows, storeys): every wing's, built in one call
     for k, present, frame, side, a in wing_frames(p):
         top, length = wing_top(p, k), p(f"wing{k}_length")
         end = side + length
-
-        def wp(name, k=k, present=present):  # the wing's storeys; none where it is absent
-            return jnp.where(present, p(f"wing{k}_floors"), 0.0) if name == "floors" else p(name)
-
         out.boxes(WALLS, frame(side - inset, -a + inset, 0.0), frame(end - inset, a - inset, top), present)
-        if lod >= 2:
-            run = length - inset  # the end facade's wall takes the last inset
-            # the facades facing -v, +v and +u
-            names = ("left", "right", "back") if k != 3 else ("back", "front", "right")
-            for facade, length_, origin, count in (
-                    (names[0], run, frame(side + 0.5 * run, -a, 0.0), p(f"wing{k}_windows")),
-                    (names[1], run, frame(side + 0.5 * run, a, 0.0), p(f"wing{k}_windows")),
-                    (names[2], 2 * a, frame(end, 0.0, 0.0), p(f"wing{k}_end_windows"))):
-                facade_boxes(out, wp, facade, length_, origin, count, lod, wing=True)
+        run = length - inset  # the end facade's wall takes the last inset
+        storeys = jnp.where(present, p(f"wing{k}_floors"), 0.0)  # none where the wing is absent
+        names = ("left", "right", "back") if k != 3 else ("back", "front", "right")  # facing -v, +v and +u
+        facades += [(names[0], run, frame(side + 0.5 * run, -a, 0.0), p(f"wing{k}_windows"), storeys),
+                    (names[1], run, frame(side + 0.5 * run, a, 0.0), p(f"wing{k}_windows"), storeys),
+                    (names[2], 2 * a, frame(end, 0.0, 0.0), p(f"wing{k}_end_windows"), storeys)]
         if lod >= 1:
             out.boxes(WALLS, frame(side, -a - co, top - ch), frame(end + co, a + co, top), present)
         kind = p(f"wing{k}_roof")
@@ -97,3 +91,10 @@ def wing_solids(out: Solids, p, inset, lod: int) -> None:
         flat_roof(out, frame, side, end + o, e, top, p, lod, present & (kind == FLAT), closed=False)
         pitched_roof(out, p, kind, frame, jnp.where(main_flat, side, 0.0), end + o, e, top, p(f"wing{k}_roof_height"),
                      (False, True), present & (kind != FLAT))
+    if lod >= 2:
+        names, lengths, origins, windows, storeys = zip(*facades)
+
+        def wp(name):
+            return jnp.stack(storeys) if name == "floors" else p(name)
+
+        facade_boxes(out, wp, names, jnp.stack(lengths), jnp.stack(origins), jnp.stack(windows), lod, wing=True)

@@ -32,6 +32,10 @@ class RoofSettings(Settings):
     decide_shares: tuple[Annotated[float, UNIT], ...] = ()
     """Shares of the object's height the race also tries giving to a pitched roof, for each value and each
     turn (``split_roof``: the walls take the rest); (): none (docs/decisions.md, 'Height shares')."""
+    decide_kinds: Annotated[int, at_least(0)] = 0
+    """Where a categorical parameter has more values than this, a first round gives every value as it stands
+    ``decide_steps``, and only the best ``decide_kinds`` go on to be tried turned and with the height shares;
+    0: every value with its turns and shares from the start (docs/decisions.md, 'Roof race')."""
 
 
 def race_survivors(candidates: int) -> int:
@@ -39,9 +43,13 @@ def race_survivors(candidates: int) -> int:
     return min(candidates, max(2, (candidates + 1) // 2))
 
 
-def decide_evaluations(candidates: int, settings: RoofSettings) -> int:
-    """Adam steps :func:`decide` spends on ``candidates`` values of one parameter (progress bar)."""
+def decide_evaluations(candidates: int, settings: RoofSettings, values: int | None = None) -> int:
+    """Adam steps :func:`decide` spends on ``candidates`` starts of one parameter of ``values`` values
+    (progress bar)."""
     total = 0
+    if values is not None and 0 < settings.decide_kinds < values:  # the first round over the values alone
+        total += values * settings.decide_steps
+        candidates = candidates * settings.decide_kinds // values
     for _ in range(settings.decide_rounds):
         total += candidates * settings.decide_steps
         candidates = race_survivors(candidates)
@@ -60,7 +68,9 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.nda
     round the better half (at least two) get ``decide_steps`` more from where they stand, since
     the current value starts converged and a new roof is still descending when the first round
     ends. With ``decide_shares`` each value (and each turned) also starts with the height shared
-    anew between roof and walls (``split_roof``)."""
+    anew between roof and walls (``split_roof``). With ``decide_kinds`` below the number of values
+    (nine roof kinds), a first round ranks the values as they stand and only the best go on to
+    their turns and shares."""
     problem = trial.problem
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = trial.scorer((10_005, 10_006))
@@ -68,11 +78,19 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.nda
         i, on = spec.index[name], gen.active(spec.from_unit(z[:n]))
         if settings.decide_steps <= 0 or not on[i]:
             continue
-        pool = []
-        for k in range(int(spec.levels[i])):
+        levels = int(spec.levels[i])
+        values = []
+        for k in range(levels):
             alt = z.copy()
-            alt[i] = k / (spec.levels[i] - 1)
-            value = f"{name}={spec.lower[i] + k:g}"
+            alt[i] = k / (levels - 1)
+            values.append((f"{name}={spec.lower[i] + k:g}", alt))
+        kept = range(levels)
+        if 0 < settings.decide_kinds < levels:  # every value as it stands first; the best go on
+            tried = [trial.tried(start, tag, settings.decide_steps, score) for tag, start in values]
+            kept = sorted(np.argsort([loss for _, loss in tried], kind="stable")[:settings.decide_kinds])
+        pool = []
+        for k in kept:
+            value, alt = values[k]
             splits = [(share, gen.split_roof(spec.from_unit(alt[:n]), share)) for share in settings.decide_shares]
             for tag, start in [(value, alt)] + [(f"{value} roof {share:g}", problem.with_shape(alt, x))
                                                 for share, x in splits if x is not None]:
@@ -102,7 +120,7 @@ class RoofRace(Move):
     def cost(self, problem, profile) -> int:
         settings, spec = profile.of(RoofSettings), problem.spec
         return sum(decide_evaluations(int(spec.levels[spec.index[c]]) * (1 + self.turns(problem, profile))
-                                      * (1 + len(settings.decide_shares)), settings)
+                                      * (1 + len(settings.decide_shares)), settings, int(spec.levels[spec.index[c]]))
                    for c in problem.generator.categorical)
 
     def __call__(self, cand, trial, settings):
