@@ -25,8 +25,9 @@ MIN_RIDGE = 0.02
 
 def pitched_roof(out: Solids, p, kind, world, u0, u1, e, top, h, hips: tuple[bool, bool], valid) -> None:
     """A pitched roof of ``kind`` from ``u0`` to ``u1`` along its ridge, ``e`` to either side of it,
-    its eaves at ``top`` and its ridge ``h`` above them; ``world(u, v, y)``: the wing's frame;
-    ``hips``: whether each end may be hipped (a wing's end in the main wing stays gabled)."""
+    its eaves at ``top`` and its ridge ``h`` above them (each a value, or one per wing);
+    ``world(u, v, y)``: the wing's frame; ``hips``: whether each end may be hipped (a wing's end in
+    the main wing stays gabled)."""
     i, kr, kh = p("hip_ratio"), p("knee_run"), p("knee_height")
     v_ridge = jnp.where(kind == SALTBOX, p("ridge_offset") * e, jnp.where(kind == SKILLION, -e, 0.0))
     share = jnp.where(kind == HALF_HIP, 1.0 - i, 0.5)  # how far up the straight slope the knee is
@@ -43,7 +44,7 @@ def pitched_roof(out: Solids, p, kind, world, u0, u1, e, top, h, hips: tuple[boo
     profile = ((-e, top, 0.0), (v_left, y_knee, d_knee), (v_ridge, top + h, d_ridge), (v_right, y_knee, d_knee),
                (e, top, 0.0))
     ends = ((u0, 1.0 if hips[0] else 0.0), (u1, -1.0 if hips[1] else 0.0))
-    out.roof(ROOF, jnp.stack([world(u + inward * d, v, y) for u, inward in ends for v, y, d in profile]), valid)
+    out.roof(ROOF, jnp.stack([world(u + inward * d, v, y) for u, inward in ends for v, y, d in profile], -2), valid)
 
 
 def flat_roof(out: Solids, world, u0, u1, e, top, p, lod: int, valid, closed: bool = True) -> None:
@@ -62,7 +63,7 @@ def flat_roof(out: Solids, world, u0, u1, e, top, p, lod: int, valid, closed: bo
 
 def main_frame(u, v, y):
     """The main wing's roof frame: along x, across z."""
-    return jnp.stack(jnp.broadcast_arrays(u, y, v))
+    return jnp.stack(jnp.broadcast_arrays(u, y, v), -1)
 
 
 def roof_solids(out: Solids, p, top, lod: int) -> None:

@@ -38,6 +38,9 @@ class Solids:
                             jnp.where(BITS[None], hi[:, None, :], lo[:, None, :])))
 
     def roof(self, part: int, vertices: jnp.ndarray, valid=True) -> None:
-        self.groups.append(("roof", jnp.full(1, part), jnp.reshape(valid, (1,)), vertices[None]))
+        """Roofs of ten vertices each (..., 10, 3) in ``ROOF_FACES``' order; ``valid`` broadcasts."""
+        vertices = vertices.reshape(-1, 10, 3)
+        lead = vertices.shape[:1]
+        self.groups.append(("roof", jnp.full(lead, part), jnp.broadcast_to(valid, lead), vertices))
 
 
