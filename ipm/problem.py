@@ -173,10 +173,11 @@ class Problem:
             return z
         x = spec.from_unit(z[:n])
         lengths = ~spec.discrete & ~np.isin(spec.names, gen.ratios)
-        used = lengths & gen.active(x) & (x > 0)
+        used = lengths & gen.active(x) & (x != 0)
         if not used.any():
             return z
-        lo, hi = np.log(spec.lower[used].clip(1e-9) / x[used]).max(), np.log(spec.upper[used] / x[used]).min()
+        lo, hi = length_room(x[used], spec.lower[used], spec.upper[used])
+        lo, hi = lo.max(), hi.min()
         ls = n + POSE_NAMES.index("log_scale")
         log_k = float(np.clip(0.5 * (lo + hi) if lo <= hi else 0.0, z[ls] - self.upper[ls], z[ls] - self.lower[ls]))
         x[lengths] *= np.exp(log_k)
@@ -316,6 +317,15 @@ class BoundVertices:
 
 _PROGRAMS: dict = {}
 """Vertex programs by (generator class, topology or groups, level of detail, camera, render)."""
+
+
+def length_room(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The log factors (least, most) by which each length ``x`` (non-zero; a signed one, such as a
+    wing's shift along its side, moves towards its bound of its own sign) can be scaled within
+    its bounds; -inf where no bound limits the shrinking."""
+    far, near = np.where(x > 0, upper, lower) / x, np.where(x > 0, lower, upper) / x
+    with np.errstate(divide="ignore"):
+        return np.where(near > 0, np.log(np.maximum(near, 1e-300)), -np.inf), np.log(far)
 
 
 def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera, render: bool = True):

@@ -12,7 +12,7 @@ from ipm.generators import get_generator
 from ipm.io import load_mesh, load_views
 from ipm.methods import METHODS
 from ipm.metrics import silhouette_iou
-from ipm.problem import Problem, estimate_anchor
+from ipm.problem import Problem, estimate_anchor, length_room
 from ipm.synth import ground_truth_mesh, load_case
 from tests.conftest import THREADS, slow_except
 
@@ -84,9 +84,9 @@ def test_recentring_keeps_the_mesh_and_frees_the_bounds():
     for _ in range(4):
         # a fit that drifted to a small scale: its lengths grown until the first reaches its bound
         x = gen.sample(rng)
-        used = lengths & gen.active(x)
-        grow = np.min(spec.upper[used] / x[used])
-        x[lengths] = np.minimum(x[lengths] * grow, spec.upper[lengths])
+        used = lengths & gen.active(x) & (x != 0)
+        grow = np.exp(np.min(length_room(x[used], spec.lower[used], spec.upper[used])[1]))
+        x[lengths] = np.clip(x[lengths] * grow, spec.lower[lengths], spec.upper[lengths])
         z = np.concatenate([spec.to_unit(x), [0.7, 0.0, 0.0, 0.05, 0.0, -0.1, -np.log(grow)]])
         out = problem.recentred(z)
         # the same mesh (the level the refinement stages fit; finer ones keep a few fixed
@@ -96,8 +96,8 @@ def test_recentring_keeps_the_mesh_and_frees_the_bounds():
         assert out[scale] > z[scale] and np.array_equal(problem.key(out), problem.key(z))
         # the used lengths now as far, in log terms, from their lower bounds as from their upper
         y = spec.from_unit(out[: problem.n_shape])
-        room_down = np.min(np.log(y[used] / spec.lower[used].clip(1e-9)))
-        room_up = np.min(np.log(spec.upper[used] / y[used]))
+        least, most = length_room(y[used], spec.lower[used], spec.upper[used])
+        room_down, room_up = -np.max(least), np.min(most)
         assert room_up > 0.0 and room_down == pytest.approx(room_up, abs=1e-6)
     dishes = Problem(get_generator("dishes"), np.zeros(3), 1.0)  # no such gauge: left as it is
     z = np.full(dishes.dim, 0.3)
