@@ -82,7 +82,8 @@ class Buildings(Generator):
         s = dict(zip(DISCRETE, key))
         s["balcony_floors"] = (list(range(1, s["floors"])) if s["balconies"] == 1 else
                                list(range(s["balcony_start"], s["floors"])) if s["balconies"] == 2 else [])
-        s["wings"] = [k for k, on in zip(WINGS, (s["template"] >= L_PLAN, s["template"] == U_PLAN, s["annex"] == 1)) if on]
+        on = (s["template"] >= L_PLAN, s["template"] == U_PLAN, s["annex"] == 1)
+        s["wings"] = [k for k, wing_on in zip(WINGS, on) if wing_on]
         s["roofs"] = {s["roof_type"], *(s[f"wing{k}_roof"] for k in s["wings"])}
         return s
 
@@ -283,16 +284,15 @@ class Buildings(Generator):
         main = faces_with(RECTANGLE, 0)
         layers = [(main, attributes(x[ix["roof_type"]], x[ix["floors"]], wall_top(lambda k: x[ix[k]]),
                                     rise(x[ix["roof_type"]], x[ix["roof_height"]])))]
-        plan, annex = int(round(float(x[ix["template"]]))), int(round(float(x[ix["annex"]])))
-        wings = {1: (faces_with(T_PLAN, 0), main) if plan >= L_PLAN else None,
-                 2: (faces_with(U_PLAN, 0), faces_with(T_PLAN, 0)) if plan == U_PLAN else None,
-                 3: (faces_with(RECTANGLE, 1), main) if annex else None}
-        for k, pair in wings.items():
-            if pair is not None:
-                roof = x[ix[f"wing{k}_roof"]]
-                layers.append(({f: r for f, r in pair[0].items() if f not in pair[1]},
-                               attributes(roof, x[ix[f"wing{k}_floors"]], wing_top(lambda n: x[ix[n]], k),
-                                          rise(roof, x[ix[f"wing{k}_roof_height"]]))))
+        # each wing's faces: those the plan and annex values with it have and the values before it lack
+        with_and_without = {1: ((T_PLAN, 0), (RECTANGLE, 0)), 2: ((U_PLAN, 0), (T_PLAN, 0)),
+                            3: ((RECTANGLE, 1), (RECTANGLE, 0))}
+        for k in self._structure(self.topology_key(x))["wings"]:
+            present, before = (faces_with(*values) for values in with_and_without[k])
+            roof = x[ix[f"wing{k}_roof"]]
+            layers.append(({f: r for f, r in present.items() if f not in before},
+                           attributes(roof, x[ix[f"wing{k}_floors"]], wing_top(lambda n: x[ix[n]], k),
+                                      rise(roof, x[ix[f"wing{k}_roof_height"]]))))
         parts = [(np.array(list(faces), np.int64).reshape(-1, 3), np.array(list(faces.values()), object), attrs)
                  for faces, attrs in layers]
         return city_model(vertices, parts, layers[0][1] | {"height": max(a["height"] for _, a in layers)},
