@@ -227,6 +227,52 @@ def test_class_gradient_matches_central_differences(mitsuba_cpu, name, classes):
     assert grad == pytest.approx(fd, rel=0.15)
 
 
+@pytest.mark.slow
+def test_back_faces_culled_on_closed_solids_change_nothing_but_the_work():
+    """A building (closed, outward-facing solids) drawn with back faces culled: the same silhouette
+    and window masks, the same loss and the same gradient (same seed) as with every face drawn, from
+    fewer spans and fragments."""
+    gen, z0, fn, topo, groups, cams = _house(("window",))
+    v = np.asarray(fn(z0)).reshape(-1, 3)
+    plain, culled = (EdgeRenderer(cams, FOV, 64, 64, spp=4, cull_back=c) for c in (False, True))
+    masks = plain.render(v, groups, seed=2)
+    np.testing.assert_allclose(culled.render(v, groups, seed=2), masks, atol=1e-6)
+    z1 = z0.copy()
+    z1[gen.spec.index["window_width"]] += 0.15
+    args = (fn, z1, groups, len(topo.uv), masks[:, 0])
+    kw = dict(seed=5, highlight_targets=masks[:, 1], highlight_weight=1.0)
+    (la, ga), (lb, gb) = plain.loss_and_grad(*args, **kw), culled.loss_and_grad(*args, **kw)
+    assert lb == pytest.approx(la, rel=1e-6) and np.abs(ga).max() > 0
+    np.testing.assert_allclose(gb, ga, rtol=1e-4, atol=1e-6 * np.abs(ga).max())
+    assert all(np.all(np.less(b, a)) for a, b in zip(plain._budgets.values(), culled._budgets.values()))
+
+
+def test_meshes_of_one_padded_size_differing_inside_are_told_apart():
+    """Face arrays padded to one size with the same first and last triangles, drawn in turn by one
+    renderer, each give their own image (the faces kept on the device are looked up by content)."""
+    c2w = orbit_camera([0, 0, 0], 2.0, 0, 0)[None]
+    quad = np.array([[-0.4, -0.4, 0.0], [0.4, -0.4, 0.0], [0.4, 0.4, 0.0], [-0.4, 0.4, 0.0], [0.0, 0.0, 0.0]])
+    filler = np.tile([[0, 1, 4]], (20, 1))  # the same ends in both
+    one, two = ([filler, np.array([[k, k + 1, 4]] * 5), filler] for k in (1, 2))
+    meshes = [[np.concatenate(m), np.zeros((0, 3), int)] for m in (one, two)]
+    shared = EdgeRenderer(c2w, FOV, 32, 32)
+    for faces in meshes + meshes[::-1]:
+        alone = EdgeRenderer(c2w, FOV, 32, 32).render(quad, faces)
+        np.testing.assert_allclose(shared.render(quad, faces), alone)
+    assert not np.allclose(*(EdgeRenderer(c2w, FOV, 32, 32).render(quad, m) for m in meshes))
+
+
+def test_back_faces_culled_only_where_asked():
+    """With ``cull_back`` a triangle seen from behind is not drawn, one seen from its front is; without,
+    both are."""
+    c2w = orbit_camera([0, 0, 0], 2.0, 0, 0)[None]
+    tri = np.array([[-0.3, -0.2, 0.0], [0.35, -0.25, 0.0], [0.05, 0.4, 0.0]])  # counter-clockwise, seen from +z
+    for cull in (True, False):
+        for faces, front in (([[0, 1, 2]], True), ([[0, 2, 1]], False)):
+            out = EdgeRenderer(c2w, FOV, 32, 32, cull_back=cull).render(tri, [np.array(faces), np.zeros((0, 3), int)])
+            assert (out[0, 0].sum() > 20) == (front or not cull)
+
+
 def test_vertices_behind_the_camera_are_dropped():
     """A triangle reaching behind the camera plane is not drawn (no wrap-around smears)."""
     c2w = orbit_camera([0, 0, 0], 2.0, 0, 0)[None]

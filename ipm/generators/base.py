@@ -161,6 +161,9 @@ class Generator:
     """Discrete parameters whose values are kinds, not amounts (buildings: the roof type): polish
     tries every other value, not the next ones (``ipm.search.moves.polish``), and the roof race
     every value (``ipm.search.moves.roof``): one kind's basin is not next to another's."""
+    closed_solids: bool = False
+    """True when every mesh is a union of closed, outward-facing solids: a renderer may then draw
+    the triangles facing the camera alone (``ipm.render.edges``)."""
     ratios: tuple[str, ...] | None = None
     """The continuous parameters that are not lengths (fractions, scale factors): every other
     continuous one is a length, so lengths times k at scale 1 / k make the same mesh, a gauge

@@ -121,20 +121,28 @@ def class_surrogate(xy, s: dict, owner, cls, class_grad, jitter, planes, focal: 
     return jnp.sum(jax.lax.stop_gradient(sign[k] * g * diff[k] * weight / ss) * x / ss), count
 
 
+def front_facing(e1, e2):
+    """Whether triangles with projected edges ``e1``, ``e2`` (F, 2; pixels, y down) face the camera
+    (counter-clockwise seen from outside a closed, outward-facing solid)."""
+    return e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+
+
 def view_class_area(vertices, w2c, focal: float, faces, cls, width: int, height: int, ss: int, jitter,
-                    budgets: tuple[int, int], grad_fn=None, n_classes: int = 1):
+                    budgets: tuple[int, int], grad_fn=None, n_classes: int = 1, cull: bool = False):
     """:func:`view_area` with classes: the covered area (H, W) and the area seen of each class
     k = 1 .. ``n_classes`` (``cls`` (F,): each face's class, 0 for none) (n_classes, H, W) of one
     view (means of the row and the column pass), the spans and fragments needed (2,), and given
     ``grad_fn(area, class_areas) -> (d loss / d area, d loss / d class areas)`` the edge-sampling
     surrogate of all (:func:`scan_surrogate`, :func:`class_surrogate` per class). Triangles of no
-    area (a shared-positions generator's absent solids, collapsed to a point) are not drawn."""
+    area (a shared-positions generator's absent solids, collapsed to a point) are not drawn, nor
+    with ``cull`` those facing away (:func:`front_facing`): for closed, outward-facing solids the
+    same coverage, boundaries and visible classes from half the spans and fragments."""
     span_budget, frag_budget = budgets
     cam = vertices @ w2c[:3, :3].T + w2c[:3, 3]
     xy, front = project(vertices, w2c, focal, width, height)
     tri = xy[faces]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    face_ok = front[faces].all(1) & (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] != 0)
+    face_ok = front[faces].all(1) & (front_facing(e1, e2) if cull else e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] != 0)
     planes = face_planes(jax.lax.stop_gradient(cam), faces)
     xs = xy * ss
     passes, needed = [], jnp.zeros(2, jnp.int32)

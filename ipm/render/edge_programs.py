@@ -4,6 +4,7 @@ pullback), one per image size, supersampling and budget, and how the budgets gro
 """
 from __future__ import annotations
 
+import hashlib
 from functools import lru_cache
 from typing import Callable
 
@@ -39,8 +40,10 @@ def _round_up(n: int) -> int:
 
 
 def _faces_key(faces: np.ndarray) -> tuple:
-    """A cheap key telling face arrays apart (shape and both ends)."""
-    return faces.shape, faces[:16].tobytes(), faces[-16:].tobytes()
+    """A key telling face arrays apart: their shape and a digest of every index (arrays padded to
+    one size share their ends and differ inside)."""
+    faces = np.ascontiguousarray(faces)
+    return faces.shape, hashlib.blake2b(faces.tobytes(), digest_size=16).digest()
 
 
 def _face_classes(faces, n_vertices: int = 0, blocks: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
@@ -53,6 +56,16 @@ def _face_classes(faces, n_vertices: int = 0, blocks: int = 1) -> tuple[np.ndarr
     shift = int(n_vertices) if blocks == len(groups) else 0
     classes = np.concatenate([np.full(len(g), k) for k, g in enumerate(groups)]).astype(np.float32)
     return np.ascontiguousarray(np.concatenate([g + k * shift for k, g in enumerate(groups)])), classes
+
+
+def padded(groups: np.ndarray, classes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Faces (F, 3) and their classes (F,) padded to the next power of two (at least 256) with
+    triangles of no area (vertex 0 thrice, class 0, never drawn): meshes of similar size share
+    one compiled program."""
+    size = max(256, 1 << max(len(groups) - 1, 0).bit_length())
+    pad = size - len(groups)
+    return (np.concatenate([groups, np.zeros((pad, 3), groups.dtype)]),
+            np.concatenate([classes, np.zeros(pad, classes.dtype)]))
 
 
 def _class_sizes(classes: np.ndarray) -> tuple[int, ...]:
@@ -73,16 +86,19 @@ def _render_fn(width: int, height: int, ss: int, budget: int) -> StoredProgram:
 
 
 @lru_cache(maxsize=64)
-def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int], n_classes: int = 1) -> StoredProgram:
+def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int], n_classes: int = 1,
+                     cull: bool = False) -> StoredProgram:
     """(vertices, faces, classes, w2c, focal, jitter) -> (pixel areas (n, H, W), the classes'
-    visible areas (n, n_classes, H, W), spans and fragments needed per view (n, 2))."""
+    visible areas (n, n_classes, H, W), spans and fragments needed per view (n, 2)); ``cull``:
+    triangles facing away are not drawn (closed solids)."""
 
     def fn(vertices, faces, classes, w2c, focal, jitter):
         area, class_area, needed, _ = jax.vmap(lambda m, j: view_class_area(
-            vertices, m, focal, faces, classes, width, height, ss, j, budgets, n_classes=n_classes))(w2c, jitter)
+            vertices, m, focal, faces, classes, width, height, ss, j, budgets, n_classes=n_classes, cull=cull))(
+            w2c, jitter)
         return area, class_area, needed
 
-    return _stored(fn, "class_render", width, height, ss, budgets, n_classes)
+    return _stored(fn, "class_render", width, height, ss, budgets, n_classes, *(("cull",) if cull else ()))
 
 
 @lru_cache(maxsize=64)
@@ -154,12 +170,14 @@ def _silhouette_loss(width: int, height: int, ss: int, budget: int, batched: boo
 
 
 @lru_cache(maxsize=64)
-def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple) -> StoredProgram:
+def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple,
+                   cull: bool = False) -> StoredProgram:
     """(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
     d vertices, spans and fragments needed per view (n, 2)) with the class-mask terms ``highlight``
     (a weight per class, pyramid levels, loss; class targets (n, K, H, W)). The generator is not in
     the program (a building's takes longer to compile than the renderer, and each resolution and
-    budget is a program of its own): its vector-Jacobian product is compiled once (:func:`_pullback`)."""
+    budget is a program of its own): its vector-Jacobian product is compiled once (:func:`_pullback`).
+    ``cull``: triangles facing away are not drawn (closed solids)."""
     weights, levels, kind = highlight
 
     def class_loss(class_area, class_target):
@@ -174,7 +192,8 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
                         jax.grad(lambda x: class_loss(x, class_target))(c) / n_views)
 
             area, class_area, needed, sur = view_class_area(vertices.reshape(-1, 3), m, focal, faces, classes, width,
-                                                            height, ss, j, budgets, grads, n_classes=len(weights))
+                                                            height, ss, j, budgets, grads, n_classes=len(weights),
+                                                            cull=cull)
             area, class_area = jax.lax.stop_gradient(area), jax.lax.stop_gradient(class_area)
             loss = jnp.mean((area - target) ** 2) + class_loss(class_area, class_target)
             return loss / n_views, sur, needed
@@ -186,7 +205,7 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
         (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(*args)
         return loss, grad, needed
 
-    return _stored(fn, "class_loss", width, height, ss, budgets, highlight)
+    return _stored(fn, "class_loss", width, height, ss, budgets, highlight, *(("cull",) if cull else ()))
 
 
 def _stored(fn: Callable, *name) -> StoredProgram:

@@ -19,7 +19,7 @@ from ipm.errors import UserError
 from ipm.render.edge_classes import pyramid_loss  # noqa: F401  (re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
     _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
-    _round_up, _silhouette_loss, split, with_headroom,
+    _round_up, _silhouette_loss, padded, split, with_headroom,
 )
 from ipm.render.edge_scan import camera_arrays, project, row_ranges, supersampling
 from ipm.render.silhouette import group_count as _group_count, highlight_arrays
@@ -41,15 +41,17 @@ class EdgeRenderer:
     spans : the first span budget of :func:`~ipm.render.edge_scan.spans` (default: from the first
         mesh drawn); it grows when a mesh needs more (each size is compiled once). With further face
         groups it is also the first fragment budget of :func:`~ipm.render.edge_classes.visible_faces`.
+    cull_back : with further face groups, draw only the triangles facing the camera: the same
+        images for meshes of closed, outward-facing solids (a building's), from half the work.
     """
 
     def __init__(self, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int = 4,
-                 spans: int | None = None):
+                 spans: int | None = None, cull_back: bool = False):
         self.c2w, self.fov_x, self.width, self.height = np.asarray(c2w), fov_x, int(width), int(height)
         self.spp, self.ss = spp, supersampling(spp)
         self.w2c, self.focal = camera_arrays(self.c2w, fov_x, self.width)
         self._w2c = jnp.asarray(self.w2c)
-        self.spans = spans
+        self.spans, self.cull = spans, bool(cull_back)
         self._budgets: dict = {}
         self._faces: dict = {}
         self._blocks: dict = {}
@@ -71,7 +73,9 @@ class EdgeRenderer:
                 tri = (xy * self.ss)[faces]
                 e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
                 area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-                ok = front[faces].all(1) & ((area > 0) if classes is not None else True)  # view_class_area's
+                signed = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+                drawn = (signed < 0 if self.cull else area > 0) if classes is not None else True
+                ok = front[faces].all(1) & drawn  # view_class_area's
                 for axis, size in ((1, self.height), (0, self.width)):
                     rows = row_ranges(tri[..., axis], ok, size * self.ss, np)[1]
                     need = max(need, int(rows.sum()))
@@ -80,11 +84,12 @@ class EdgeRenderer:
             self._budgets[key] = spans if classes is None else (spans, _round_up(with_headroom(frags, grown=False) + 256))
         return self._budgets[key]
 
-    def _run(self, key, groups: np.ndarray, vertices, run, classes: np.ndarray | None = None):
-        """``run(faces, budget)`` -> (results..., budgets needed per view) with the budget of ``key``
-        (:meth:`_budget`), each grown and run again while the mesh needs more than it has; the
-        faces are put on the device once per ``key``."""
-        budget = self._budget(key, vertices, groups, classes)
+    def _run(self, key, groups: np.ndarray, vertices, run, classes: np.ndarray | None = None, budget_key=None):
+        """``run(faces, budget)`` -> (results..., budgets needed per view) with the budget of
+        ``budget_key`` (default ``key``; :meth:`_budget`), each grown and run again while the mesh
+        needs more than it has; the faces are put on the device once per ``key``."""
+        key_b = key if budget_key is None else budget_key
+        budget = self._budget(key_b, vertices, groups, classes)
         faces = self._faces.setdefault(key, jnp.asarray(groups))
         while True:
             *out, needed = run(faces, budget)
@@ -93,7 +98,7 @@ class EdgeRenderer:
             if (need <= have).all():
                 return out
             grown = tuple(_round_up(with_headroom(int(n), grown=True) + 1) if n > b else int(b) for n, b in zip(need, have))
-            budget = self._budgets[key] = grown if classes is not None else grown[0]
+            budget = self._budgets[key_b] = grown if classes is not None else grown[0]
 
     def _jitter(self, seed: int) -> np.ndarray:
         """Sample-grid jitter (n, H ss + W ss, 2) in [0, 1) for render ``seed``: each view's rows,
@@ -115,12 +120,13 @@ class EdgeRenderer:
                 self.width, self.height, self.ss, budget)(v, f, self._w2c, self.focal, jitter))
             return np.asarray(masks, np.float32)
         blocks = n_groups if vertices.ndim == 3 and len(vertices) == n_groups else 1
-        groups, classes = _face_classes(faces, vertices.shape[-2], blocks)
+        groups, classes = padded(*_face_classes(faces, vertices.shape[-2], blocks))
         v, cls = jnp.asarray(vertices.reshape(-1, 3)), jnp.asarray(classes)
         area, class_area = self._run(("render", *_faces_key(groups), *_class_sizes(classes)), groups, lambda: v,
                                      lambda f, budget: _class_render_fn(self.width, self.height, self.ss, budget,
-                                                                        n_groups - 1)(
-                                         v, f, cls, self._w2c, self.focal, jitter), classes)
+                                                                        n_groups - 1, self.cull)(
+                                         v, f, cls, self._w2c, self.focal, jitter), classes,
+                                     ("render", len(groups), n_groups))
         return np.concatenate([np.asarray(area, np.float32)[:, None], np.asarray(class_area, np.float32)], 1)
 
     def loss_and_grad(self, vertex_fn: Callable, z: np.ndarray, faces, n_vertices: int,
@@ -190,7 +196,7 @@ class EdgeRenderer:
         if (vertex_fn, n_vertices) not in self._blocks:
             size = int(np.prod(jax.eval_shape(vertex_fn, zj[0]).shape))
             self._blocks[vertex_fn, n_vertices] = size // (3 * int(n_vertices))
-        groups, classes = _face_classes(faces, n_vertices, self._blocks[vertex_fn, n_vertices])
+        groups, classes = padded(*_face_classes(faces, n_vertices, self._blocks[vertex_fn, n_vertices]))
         key = ("class", *_faces_key(groups), *_class_sizes(classes))
         if key not in self._classes:
             self._classes[key] = jnp.asarray(classes)
@@ -200,8 +206,9 @@ class EdgeRenderer:
         for z, j in zip(zj, jitter):
             vertices = vertex_fn(z)
             loss, dv = self._run(key, groups, lambda: vertices, lambda f, budget: _class_loss_fn(
-                self.width, self.height, self.ss, budget, tuple(highlight[1:]))(
-                vertices, f, cls, targets, class_targets, self._w2c, self.focal, j), classes)
+                self.width, self.height, self.ss, budget, tuple(highlight[1:]), self.cull)(
+                vertices, f, cls, targets, class_targets, self._w2c, self.focal, j), classes,
+                ("class", len(groups), len(highlight[1])))
             losses.append(float(loss))
             grads.append(np.asarray(_pullback(program)(z, constants, dv), np.float64))
         return np.array(losses), np.nan_to_num(np.stack(grads), nan=0.0, posinf=0.0, neginf=0.0)

@@ -59,15 +59,16 @@ def class_masks(generator, views: Views, name: str | None = None) -> tuple[np.nd
 
 
 def make_renderer(name: str, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
-                  mitsuba_tuned: bool = False):
+                  mitsuba_tuned: bool = False, closed: bool = False):
     """The silhouette renderer ``name`` (``ObjectiveSettings.renderer``) for these cameras: ``auto`` is
     the JAX one (``ipm.render.edges``; with a class-mask term too: buildings' window masks agree
     with Mitsuba's on the dev split within the seeds' spread, docs/decisions.md, "Renderer auto")
     unless the path's settings were tuned with Mitsuba (``mitsuba_tuned``: a camera whose field of
     view is unknown too, ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated
-    there on the dev split. With the field of view given, the pitch starts were measured with JAX)."""
+    there on the dev split. With the field of view given, the pitch starts were measured with JAX).
+    ``closed``: every mesh is closed, outward-facing solids (the JAX renderer draws front faces only)."""
     if name == "jax" or (name == "auto" and not mitsuba_tuned):
-        return EdgeRenderer(c2w, fov_x, width, height, spp)
+        return EdgeRenderer(c2w, fov_x, width, height, spp, cull_back=closed)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
 
 
@@ -78,9 +79,9 @@ class Objective:
         self.problem, self.lod, self.reg, self.width = problem, lod, profile.reg_weight, width
         self.targets = resize_masks(views.masks, width)
         h = self.targets.shape[1]
-        self.renderer = make_renderer(profile.renderer, views.c2w, views.fov_x, width, h, profile.spp,
-                                      mitsuba_tuned=problem.fov_estimated is True)
         gen, terms = problem.generator, []
+        self.renderer = make_renderer(profile.renderer, views.c2w, views.fov_x, width, h, profile.spp,
+                                      mitsuba_tuned=problem.fov_estimated is True, closed=gen.closed_solids)
         masks = class_masks(gen, views) if profile.window_weight > 0 else None
         if masks is not None and masks[1] in gen.part_semantic:
             terms.append((resize_masks(masks[0], width), masks[1], profile.window_weight))
@@ -95,24 +96,26 @@ class Objective:
         self._shared = None  # the shared-positions rendering, built on first use
 
     def _groups(self, key) -> tuple:
-        """(vertex_fn, face groups, V) to render ``key``'s topology: for a generator with shared
-        positions the level's every face in each group and one vertex block per group (one scene,
-        hence one set of compiled kernels, for all topologies: the same for every key); else the
-        topology's faces, split by the mask classes when there are class terms (group k: the
-        parts of the k-th class, group 0: the others)."""
+        """(vertex_fn, face groups, V) to render ``key``'s topology: the topology's faces, split by
+        the mask classes when there are class terms (group k: the parts of the k-th class, group 0:
+        the others). For a generator with shared positions, one vertex block per group from one
+        program for all topologies; there a renderer other than the JAX one with class terms (whose
+        programs take any faces of a padded size) draws the level's every face in each group, so
+        that one scene (a Mitsuba scene costs seconds of kernel compilation) serves every key."""
         gen, part_class = self.problem.generator, self._part_class
-        if gen.shared_positions:
-            if self._shared is None:
-                parts = np.arange(len(gen.part_names))
-                groups = tuple(tuple(parts[part_class == k]) for k in range(len(self.class_labels) + 1))
-                faces = gen.all_faces(self.lod)
-                self._shared = (self.problem.group_vertex_fn(self.lod, groups), [faces] * len(groups),
-                                int(faces.max()) + 1)
-            return self._shared
         topo = gen.topology(key, self.lod)
         faces = [topo.faces] if not self.class_labels else [topo.faces[part_class[topo.labels] == k]
                                                               for k in range(len(self.class_labels) + 1)]
-        return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
+        if not gen.shared_positions:
+            return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
+        if self._shared is None:
+            parts = np.arange(len(gen.part_names))
+            groups = tuple(tuple(parts[part_class == k]) for k in range(len(self.class_labels) + 1))
+            every = gen.all_faces(self.lod)
+            self._shared = (self.problem.group_vertex_fn(self.lod, groups), [every] * len(groups),
+                            int(every.max()) + 1)
+        fn, every, n_vertices = self._shared
+        return (fn, faces, n_vertices) if self.class_labels and isinstance(self.renderer, EdgeRenderer) else self._shared
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
         """Loss and gradient at ``z``, rendered with ``seed`` (default: the count of calls so far)."""

@@ -52,6 +52,7 @@ class Buildings(Generator):
     lods = (0, 1, 2, 3)
     reference_lod = 3
     shared_positions = True
+    closed_solids = True
     semantic_labels = BUILDING_LABELS
     part_semantic = tuple(BUILDING_LABELS[c] for c in ("wall", "window", "wall", "roof", "door", "wall"))
     """Frames and balconies count as wall: a window mask is the glass."""
