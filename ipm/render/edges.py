@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.render.edge_classes import pyramid_loss  # noqa: F401  (re-exported)
+from ipm.render.edge_classes import front_facing, pyramid_loss  # noqa: F401  (pyramid_loss re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
     _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
     _round_up, _silhouette_loss, padded, split, with_headroom,
@@ -73,8 +73,7 @@ class EdgeRenderer:
                 tri = (xy * self.ss)[faces]
                 e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
                 area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-                signed = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-                drawn = (signed < 0 if self.cull else area > 0) if classes is not None else True
+                drawn = (front_facing(e1, e2) if self.cull else area > 0) if classes is not None else True
                 ok = front[faces].all(1) & drawn  # view_class_area's
                 for axis, size in ((1, self.height), (0, self.width)):
                     rows = row_ranges(tri[..., axis], ok, size * self.ss, np)[1]
