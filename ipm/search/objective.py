@@ -94,6 +94,7 @@ class Objective:
         self.class_levels, self.class_loss = profile.window_levels, profile.window_loss
         self.calls = 0
         self._shared = None  # the shared-positions rendering, built on first use
+        self._split: dict = {}  # topology key -> its faces per group, split once
 
     def _groups(self, key) -> tuple:
         """(vertex_fn, face groups, V) to render ``key``'s topology: the topology's faces, split by
@@ -104,8 +105,10 @@ class Objective:
         that one scene (a Mitsuba scene costs seconds of kernel compilation) serves every key."""
         gen, part_class = self.problem.generator, self._part_class
         topo = gen.topology(key, self.lod)
-        faces = [topo.faces] if not self.class_labels else [topo.faces[part_class[topo.labels] == k]
-                                                              for k in range(len(self.class_labels) + 1)]
+        if key not in self._split:
+            self._split[key] = [topo.faces] if not self.class_labels else [
+                topo.faces[part_class[topo.labels] == k] for k in range(len(self.class_labels) + 1)]
+        faces = self._split[key]
         if not gen.shared_positions:
             return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
         if self._shared is None:
@@ -114,8 +117,9 @@ class Objective:
             every = gen.all_faces(self.lod)
             self._shared = (self.problem.group_vertex_fn(self.lod, groups), [every] * len(groups),
                             int(every.max()) + 1)
-        fn, every, n_vertices = self._shared
-        return (fn, faces, n_vertices) if self.class_labels and isinstance(self.renderer, EdgeRenderer) else self._shared
+        if self.class_labels and isinstance(self.renderer, EdgeRenderer):
+            return self._shared[0], faces, self._shared[2]
+        return self._shared
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
         """Loss and gradient at ``z``, rendered with ``seed`` (default: the count of calls so far)."""
