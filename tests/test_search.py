@@ -51,6 +51,17 @@ class Nudge(Move):
         return cand
 
 
+@register
+class Idle(Move):
+    """A toy move that spends evaluations (steps and scores) and keeps every candidate as it was."""
+
+    name, phase = "idle", "last"  # its steps at the width of the Adam run after it
+
+    def __call__(self, cand, trial, settings):
+        trial.tried(cand.z, "idle", 3, trial.scorer((5, 6)))
+        return cand
+
+
 class ToyCups(Dishes):
     """The cups generator with the toy move in its list."""
 
@@ -92,6 +103,21 @@ def test_an_unlisted_move_does_not_run(mug_view):
     CALLS.clear()
     reconstruct(plain, views, get_profile("smoke"), seed=0, progress=False)
     assert CALLS == []
+
+
+def test_a_move_that_changes_nothing_leaves_the_fit_as_it_was(mug_view):
+    """The render seeds a stage or move draws do not follow the evaluations made before it: a move
+    that spends evaluations but keeps its candidate gives the fit of a search without it."""
+    problem, views = mug_view
+
+    class Idling(Dishes):
+        moves = Dishes.moves + ("idle",)
+
+    profile = get_profile("smoke", refine_res=(32, 48), refine_iterations=(3, 3))
+    fits = [reconstruct(Problem(gen, problem.anchor_t, problem.anchor_s), views, profile, seed=0, progress=False)
+            for gen in (Dishes(), Idling())]
+    assert (fits[1][1]["stage"] == "idle").sum() == 3 + 1  # it ran: three steps and a score
+    np.testing.assert_array_equal(fits[0][0], fits[1][0])
 
 
 def test_the_start_of_the_search_is_pluggable(mug_view):

@@ -128,7 +128,11 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         track.enter(label, steps.width)
         trial = Trial(problem, steps, score, mem.lr, mem.reject_ratio, views, profile, track.on_eval,
                       track.recorder(label, score.width))
-        return [move(c, trial, profile.of(move.settings) if move.settings else None) for c in cands]
+        out = []
+        for c in cands:
+            steps.rewind()  # each candidate's steps draw the same seeds, whatever ran before
+            out.append(move(c, trial, profile.of(move.settings) if move.settings else None))
+        return out
 
     objective = Objective(problem, views, mem.memetic_res, max(mem.memetic_lod, least), profile.objective)
 
@@ -172,6 +176,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
             for move in phase["refine"]:
                 cand = run(move, [cand], objective, objective)[0]
             track.enter("refine", res, reset=True)
+            objective.rewind()
             ind = Individual(cand.z, problem.key(cand.z), "refine", lr=mem.lr * 0.4)
             adam_steps(ind, iters + 1, objective, problem.clip, mem.reject_ratio, track.on_eval)
             refined.append(ind.best_z)

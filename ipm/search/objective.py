@@ -122,11 +122,12 @@ class Objective:
         return self._shared
 
     def __call__(self, z: np.ndarray, seed: int | None = None) -> tuple[float, np.ndarray]:
-        """Loss and gradient at ``z``, rendered with ``seed`` (default: the count of calls so far)."""
-        first = int(self.seeds(1)[0])
+        """Loss and gradient at ``z``, rendered with ``seed`` (default: the count of the calls so far
+        that drew theirs: a score at fixed seeds leaves the later draws as they were, so a move
+        that scores more or fewer points does not change the Adam runs after it)."""
+        seed = int(self.seeds(1)[0]) if seed is None else seed
         fn, faces, n_vertices = self._groups(self.problem.key(z))
-        loss, grad = self.renderer.loss_and_grad(fn, z, faces, n_vertices, self.targets,
-                                                 seed=first if seed is None else seed,
+        loss, grad = self.renderer.loss_and_grad(fn, z, faces, n_vertices, self.targets, seed=seed,
                                                  highlight_targets=self.class_targets,
                                                  highlight_weight=self.class_weight,
                                                  highlight_levels=self.class_levels,
@@ -138,6 +139,11 @@ class Objective:
         """The render seeds of the next ``n`` evaluations, those calls one at a time would draw."""
         self.calls += n
         return np.arange(self.calls - n, self.calls)
+
+    def rewind(self) -> None:
+        """The next evaluation draws the first render seed again: a move's or a stage's draws do not
+        depend on how many evaluations the moves before it made."""
+        self.calls = 0
 
     def batch(self, on: bool) -> Batch | None:
         """Batched evaluations for the memetic stage (``MemeticSettings.memetic_batch``), or None: off,

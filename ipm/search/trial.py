@@ -67,6 +67,12 @@ class Tracker:
         return pd.DataFrame(self.rows, columns=TRACE_COLUMNS)
 
 
+def survivors(candidates: int) -> int:
+    """How many of ``candidates`` go on to a race's next round (:meth:`Trial.rounds`): the better
+    half, at least two."""
+    return min(candidates, max(2, (candidates + 1) // 2))
+
+
 class Trial:
     """How a move tries points: Adam steps under ``steps`` (an objective), compared under ``score``
     (an objective at the stage's width); every evaluation and scored candidate goes to the trace."""
@@ -93,6 +99,21 @@ class Trial:
         loss = score(cand)
         self.record(name, loss)
         return cand, loss
+
+    def rounds(self, pool: list[tuple[str, np.ndarray]], steps: int, rounds: int,
+               score: Callable) -> list[tuple[str, np.ndarray, float]]:
+        """The starts of ``pool`` (name, point) raced over ``rounds``: each round gives every start left
+        ``steps`` Adam steps from where it stands and keeps the better half (at least two,
+        :func:`survivors`) for the next; the last round's (name, point, score), lowest first."""
+        tried = []
+        for r in range(rounds):
+            tried = [(tag, *self.tried(start, tag if r == 0 else f"{tag} (round {r + 1})", steps, score))
+                     for tag, start in pool]
+            tried.sort(key=lambda t: t[2])
+            if r < rounds - 1:
+                tried = tried[:survivors(len(tried))]
+            pool = [(tag, point) for tag, point, _ in tried]
+        return tried
 
     def race(self, z: np.ndarray, name: str, starts: list[tuple[str, np.ndarray]], steps: int, margin: float,
              score: Callable) -> np.ndarray:

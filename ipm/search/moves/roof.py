@@ -12,6 +12,7 @@ import numpy as np
 
 from ipm.search.moves.base import Move, register
 from ipm.search.moves.counts import read_counts_into, reads, turned
+from ipm.search.trial import survivors
 from ipm.settings import UNIT, Settings, at_least
 
 
@@ -38,11 +39,6 @@ class RoofSettings(Settings):
     0: every value with its turns and shares from the start (docs/decisions.md, 'Roof race')."""
 
 
-def race_survivors(candidates: int) -> int:
-    """How many of ``candidates`` go on to :func:`decide`'s next round: the better half, at least two."""
-    return min(candidates, max(2, (candidates + 1) // 2))
-
-
 def decide_evaluations(candidates: int, settings: RoofSettings, values: int | None = None) -> int:
     """Adam steps :func:`decide` spends on ``candidates`` starts of one parameter of ``values`` values
     (progress bar)."""
@@ -52,7 +48,7 @@ def decide_evaluations(candidates: int, settings: RoofSettings, values: int | No
         candidates = candidates * settings.decide_kinds // values
     for _ in range(settings.decide_rounds):
         total += candidates * settings.decide_steps
-        candidates = race_survivors(candidates)
+        candidates = survivors(candidates)
     return total
 
 
@@ -96,12 +92,7 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.nda
                                                 for share, x in splits if x is not None]:
                 pool += [(tag, start)] + ([(f"{tag} turned", recount(turned(problem, start, np.pi / 2)))]
                                           if recount is not None else [])
-        for r in range(settings.decide_rounds):
-            tried = [trial.tried(start, tag if r == 0 else f"{tag} (round {r + 1})", settings.decide_steps, score)
-                     for tag, start in pool]
-            order = np.argsort([loss for _, loss in tried], kind="stable")
-            pool = [(pool[j][0], tried[j][0]) for j in order[:race_survivors(len(pool))]]
-        z = pool[0][1]
+        z = trial.rounds(pool, settings.decide_steps, settings.decide_rounds, score)[0][1]
     return z
 
 
