@@ -22,7 +22,6 @@ frames and mullions, balcony railings, entrance canopies.
 """
 from __future__ import annotations
 
-import itertools
 from functools import lru_cache
 
 import jax
@@ -68,9 +67,9 @@ class Buildings(Generator):
     """The chimney, switched on and mid-sized, at nine places on the roof (``ipm.search.moves.place``)."""
     footprint = ("width", "depth")
     """The extent along the object's x and z axes (``ipm.search.moves.sight``)."""
-    moves = ("read", "polish", "recentre", "prune", "roof", "sight", "place", "read again")
-    """Counts read off the window masks, polish, re-centring, the prune race (wings the view does not
-    need left out), the roof race, the line-of-sight and the chimney sweeps (``ipm.search.moves``)."""
+    moves = ("read", "polish", "recentre", "roof", "sight", "place", "read again")
+    """Counts read off the window masks, polish, re-centring, the roof race, the line-of-sight and the
+    chimney sweeps (``ipm.search.moves``)."""
     ratios = ("side_window_scale", "ground_window_scale", "hip_ratio", "knee_height", "knee_run", "ridge_offset",
               "balcony_width", "chimney_x", "chimney_z")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
@@ -100,32 +99,6 @@ class Buildings(Generator):
         if name == "floors":
             x[ix["floor_height"]] = walls / x[ix["floors"]]
         return self.spec.clip(x)
-
-    def pruned(self, x):
-        """``x`` with fewer wings, named, for the prune race (``ipm.search.moves.prune``): every set
-        of the wings it has with one or more left out, each kept wing where it stood (a U's left
-        wing kept alone becomes a T's wing moved towards that end, its right wing an L's)."""
-        ix, x = self.spec.index, np.asarray(x, np.float64)
-        plan = int(round(x[ix["template"]]))
-        wings = self._structure(self.topology_key(x))["wings"]
-        out = []
-        for keep in itertools.product((0, 1), repeat=len(wings)):
-            kept = {k for k, on in zip(wings, keep) if on}
-            if len(kept) == len(wings):
-                continue
-            y = x.copy()
-            y[ix["annex"]] = int(3 in kept)
-            back = kept - {3}
-            y[ix["template"]] = (RECTANGLE if not back else U_PLAN if back == {1, 2} else
-                                 plan if plan != U_PLAN else T_PLAN if back == {1} else L_PLAN)
-            if plan == U_PLAN and back == {2}:  # the right wing alone: an L's, flush with the right end
-                for name in ("width", "length", "shift", "roof_height", "floors", "roof", "windows", "end_windows"):
-                    y[ix[f"wing1_{name}"]] = x[ix[f"wing2_{name}"]]
-            elif plan == U_PLAN and back == {1}:  # the left wing alone: a T's, moved as near its end as it goes
-                a = 0.5 * x[ix["wing1_width"]]
-                y[ix["wing1_shift"]] = x[ix["wing1_shift"]] - 0.5 * x[ix["width"]] + a
-            out.append(("rectangle" if not kept else " + ".join(f"wing {k}" for k in sorted(kept)), self.spec.clip(y)))
-        return out
 
     def quarter_turned(self, x):
         """``x`` with width and depth swapped: turned a quarter about +y, it covers what ``x`` covered."""
