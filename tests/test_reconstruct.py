@@ -176,8 +176,8 @@ def test_match_area_recovers_the_scale(mitsuba_cpu):
 def test_batched_objective_matches_single_calls(mitsuba_cpu):
     """``Objective.many``: points of two topologies (with and without a handle), padded to a batch
     of 4, give the losses and gradients of one-at-a-time calls with the same seeds, and those calls
-leave the seeds later calls draw as they were; ``batch`` is on
-    only where asked, and only for the JAX renderer's silhouettes."""
+    leave the seeds later calls draw as they were; ``batch`` is on only where asked, and only for
+    the JAX renderer's silhouettes."""
     from ipm.search.objective import Objective
     from ipm.profiles import get_profile
 
