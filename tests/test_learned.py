@@ -189,7 +189,7 @@ def test_the_learned_row_and_start(trained, cup_view, tmp_path):
     """The learned row writes a reconstruction like any other; the learned start puts its proposals
     first in the memetic population."""
     from ipm.io import load_views
-    from ipm.learned.propose import discrete_choices, drawn_choices, propose
+    from ipm.learned.propose import discrete_choices, propose
     from ipm.methods.learned import run_learned
     from ipm.optim.memetic import MemeticSettings
     from ipm.learned.propose import has_weights
@@ -215,17 +215,6 @@ def test_the_learned_row_and_start(trained, cup_view, tmp_path):
     assert not has_weights("trees") and has_weights("dishes") and has_weights("trees", path)
     choices = discrete_choices([np.array([0.1, 0.9]), np.array([0.6, 0.3, 0.1])], 3)
     assert [c for c, _ in choices] == [(1, 0), (1, 1), (1, 2)]
-    drawn = drawn_choices([np.array([0.5, 0.5]), np.array([0.0, 0.5, 0.5])], 10, np.random.default_rng(0))
-    assert sorted(drawn) == [(0, 1), (0, 2), (1, 1), (1, 2)]  # every joint the distributions allow, once
-    # drawn proposals: the most probable joint, then others; the start keeps those the score ranks lowest
-    zs = propose(problem, views, 1, path, draws=3, rng=np.random.default_rng(0))
-    assert len({problem.key(z) for z in zs}) == len(zs) >= 2
-    handle = get_generator("dishes").spec.index["has_handle"]
-    assert {z[handle] for z in zs} == {0.0, 1.0}  # the open choice among the draws
-    other = 1.0 - zs[0][handle]  # the start keeps the draw the score prefers over the most probable joint
-    pop = learned_start(views, 1, path, draws=3)(problem, MemeticSettings(population=6), np.random.default_rng(0),
-                                                 score=lambda z: float(z[handle] != other))
-    assert pop[0].z[handle] == other and pop[0].origin == "learned" and len(pop) == 6
 
 
 def test_the_memetic_stage_is_shorter_from_the_learned_start(tiny_case, monkeypatch):
@@ -245,10 +234,10 @@ def test_the_memetic_stage_is_shorter_from_the_learned_start(tiny_case, monkeypa
         seen.append(settings.ga_iterations)
         raise Stop
 
-    def plain(problem, settings, rng, prepare=None, score=None):
+    def plain(problem, settings, rng, prepare=None):
         return preset_start(problem, settings, rng)
 
-    def learned(problem, settings, rng, prepare=None, score=None):
+    def learned(problem, settings, rng, prepare=None):
         return preset_start(problem, settings, rng)
 
     learned.learned = True
@@ -293,7 +282,7 @@ def test_a_learned_start_that_fits_badly_adds_the_presets_stage(tiny_case, monke
         seen["final"] = final
         raise Stop
 
-    def learned(problem, settings, rng, prepare=None, score=None):
+    def learned(problem, settings, rng, prepare=None):
         pop = preset_start(problem, settings, rng)
         pop[0].origin = "learned"
         return pop

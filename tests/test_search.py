@@ -126,7 +126,7 @@ def test_the_start_of_the_search_is_pluggable(mug_view):
     problem, views = mug_view
     starts = []
 
-    def one_guess(problem, settings, rng, prepare, score=None):
+    def one_guess(problem, settings, rng, prepare):
         pop = preset_start(problem, settings, rng, prepare)
         for ind in pop:
             ind.origin = "guess"

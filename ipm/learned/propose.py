@@ -101,35 +101,17 @@ def propose_camera(generator: str, views, prepared: str | Path | None = None) ->
     return float(pose[3]), float(2.0 * np.arctan(np.exp(pose[4])))
 
 
-def drawn_choices(probs: list[np.ndarray], n: int, rng: np.random.Generator) -> list[tuple[int, ...]]:
-    """Up to ``n`` distinct joint choices drawn from independent per-parameter class distributions
-    (each parameter's class by its probability), in the order first drawn."""
-    seen: dict[tuple[int, ...], None] = {}
-    for _ in range(4 * n):
-        if len(seen) == n:
-            break
-        seen.setdefault(tuple(int(rng.choice(len(p), p=p / p.sum())) for p in probs), None)
-    return list(seen)
-
-
-def propose(problem, views, k: int = 1, prepared: str | Path | None = None, draws: int = 0,
-            rng: np.random.Generator | None = None) -> list[np.ndarray]:
-    """Starts ``z`` for ``problem`` from the first view: the predicted continuous parameters and pose
-    with each of the ``k`` most probable joints of the discrete parameters (best first), then with up
-    to ``draws`` other joints drawn from the predicted distributions by ``rng`` (the kinds of plan,
-    roof or handle the view leaves open, where the most probable joints differ only in what it
-    hides). An unknown camera (a photo's) is read by the camera-hidden variant, its genes at the
-    render camera's (whose pitch and lens :func:`propose_camera` can have set)."""
+def propose(problem, views, k: int = 1, prepared: str | Path | None = None) -> list[np.ndarray]:
+    """Up to ``k`` starts ``z`` for ``problem`` from the first view, best first: the predicted
+    continuous parameters and pose with each of the ``k`` most probable joints of the discrete
+    parameters. An unknown camera (a photo's) is read by the camera-hidden variant, its genes at
+    the render camera's (whose pitch and lens :func:`propose_camera` can have set)."""
     gen = problem.generator
     spec = gen.spec
     out = read_view(gen.name, views, prepared, camera_hidden=problem.camera is not None)
     yaw = float(np.arctan2(out["yaw"][0, 1], out["yaw"][0, 0]))
-    probs = [p[0] for p in out["probs"]]
-    joints = [levels for levels, _ in discrete_choices(probs, k)]
-    if draws:
-        joints += [c for c in drawn_choices(probs, draws + len(joints), rng) if c not in joints][:draws]
     starts = []
-    for levels in joints:
+    for levels, _ in discrete_choices([p[0] for p in out["probs"]], k):
         u = np.zeros(len(spec))
         u[~spec.discrete] = out["u"][0]
         x = spec.from_unit(u)

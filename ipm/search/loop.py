@@ -50,11 +50,6 @@ class LoopSettings(Settings):
     learned_proposals: Annotated[int, at_least(1)] = 4
     """How many of the regressor's proposals (its most probable discrete joints) the learned start puts
     in the population."""
-    learned_draws: Annotated[int, at_least(0)] = 0
-    """Joints of the discrete parameters the learned start draws from the regressor's distributions
-    beside its most probable one; each is scored against the input at the memetic resolution and the
-    ``learned_proposals`` lowest go in (0: the most probable joints, unscored; docs/decisions.md,
-    'Proposals drawn and checked')."""
     learned_generations: Annotated[int, at_least(1)] = 4
     """The memetic stage's generations (at most ``ga_iterations``) when it starts from the learned
     proposals, which start near the answer (docs/decisions.md, 'Memetic stage from the learned start')."""
@@ -150,7 +145,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     final, added = [], set()
     for held in holds:
         with problem.holding(held):
-            last = stage(start(problem, mem, rng, objective.match_area, scorer(objective, (10_009,))), mem)
+            last = stage(start(problem, mem, rng, objective.match_area), mem)
             if learned:
                 again = loop.learned_fit is not None and last[0].best_loss > loop.learned_fit
                 track.recorder("start", objective.width)("learned: presets added" if again else "learned: kept",

@@ -1,8 +1,7 @@
 """Where the search starts: the memetic stage's first population (a pluggable part of the loop).
 
-A start is a callable ``(problem, settings, rng, prepare, score=None) -> list[Individual]``
-(``settings``: ``ipm.optim.memetic.MemeticSettings``; ``prepare`` adjusts each start, e.g. its
-scale; ``score``, where given, is the loss of a point against the input at fixed seeds). Today's
+A start is a callable ``(problem, settings, rng, prepare) -> list[Individual]`` (``settings``:
+``ipm.optim.memetic.MemeticSettings``; ``prepare`` adjusts each start, e.g. its scale). Today's
 are :func:`preset_start` and :func:`learned_start` (the regressor's proposals first, ``ipm.learned``);
 :func:`start_for` picks one for a fit; the loop takes either unchanged.
 """
@@ -15,7 +14,7 @@ from ipm.problem import Problem
 
 
 def preset_start(problem: Problem, settings: MemeticSettings, rng: np.random.Generator,
-                 prepare=lambda z: z, score=None) -> list[Individual]:
+                 prepare=lambda z: z) -> list[Individual]:
     """The generator's presets and random samples (``random_share`` of them), spread over yaw bins
     and, for an unknown camera, over its pitch (``UnknownCamera.spread``)."""
     presets = list(problem.generator.presets.items())
@@ -37,32 +36,25 @@ def preset_start(problem: Problem, settings: MemeticSettings, rng: np.random.Gen
     return pop
 
 
-def learned_start(views, proposals: int = 4, prepared=None, draws: int = 0):
+def learned_start(views, proposals: int = 4, prepared=None):
     """A start whose first ``proposals`` individuals are the regressor's proposals for ``views``
-    (``ipm.learned.propose``), the rest :func:`preset_start`'s. With ``draws`` and a ``score``, the
-    proposals are the ``proposals`` lowest in loss of the most probable joint and ``draws`` others
-    drawn from the regressor's distributions: the view, not the regressor alone, chooses among the
-    plans it leaves open; without, its most probable joints."""
+    (``ipm.learned.propose``: its most probable discrete joints), the rest :func:`preset_start`'s."""
 
     def start(problem: Problem, settings: MemeticSettings, rng: np.random.Generator,
-              prepare=lambda z: z, score=None) -> list[Individual]:
+              prepare=lambda z: z) -> list[Individual]:
         from ipm.learned.propose import propose
 
-        n = min(proposals, settings.population)
-        if draws and score is not None:
-            zs = [prepare(z) for z in propose(problem, views, 1, prepared, draws, rng)]
-            losses = [score(z) for z in zs]
-            zs = [zs[i] for i in np.argsort(losses, kind="stable")[:n]]
-        else:
-            zs = [prepare(z) for z in propose(problem, views, n, prepared)]
-        pop = [Individual(z, problem.key(z), "learned", lr=settings.lr) for z in zs]
+        pop = []
+        for z in propose(problem, views, min(proposals, settings.population), prepared):
+            z = prepare(z)
+            pop.append(Individual(z, problem.key(z), "learned", lr=settings.lr))
         return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
 
     start.learned = True  # the loop's memetic stage is shorter from it (LoopSettings.learned_generations)
     return start
 
 
-def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=None, draws: int = 0):
+def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=None):
     """The start of a fit of ``problem`` to ``views`` for the setting ``start``: ``learned`` is
     :func:`learned_start` where the regressor applies (a known camera, or an unknown one whose render
     camera it proposed; weights for the generator, ``prepared`` or shipped), else
@@ -72,5 +64,5 @@ def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=
     hidden = problem.camera is not None
     if start == "learned" and (not hidden or problem.camera.proposed) and \
             has_weights(problem.generator.name, prepared, camera_hidden=hidden):
-        return learned_start(views, proposals, prepared, draws)
+        return learned_start(views, proposals, prepared)
     return preset_start
