@@ -45,3 +45,28 @@ def test_cup_fits_splits_a_trace_into_steady_time_and_events():
     row = split_time(trace, 0.05)
     assert row["events"] == 2 and row["seconds_events"] == 3.5
     assert row["seconds_steady"] == 0.02 and row["median_eval_ms"] == 4.0 and row["memetic_s"] == 2.01
+
+
+def test_mask_robustness_degrades_the_input_mask_and_measures_against_the_true_masks_fit(tmp_path):
+    """The copied views folder holds the degraded mask (its IoU with the true one returned), nothing
+    else changes; losses are against the same case and seed's fit to the true mask."""
+    import json
+
+    from PIL import Image
+
+    bench = _script("mask_robustness")
+    src = tmp_path / "views"
+    (src / "masks").mkdir(parents=True)
+    y, x = np.mgrid[:64, :64]
+    mask = (x - 32) ** 2 + (y - 32) ** 2 <= 15**2
+    Image.fromarray((mask * 255).astype(np.uint8)).save(src / "masks/000.png")
+    (src / "transforms.json").write_text(json.dumps({"frames": [{"mask_path": "masks/000.png"}]}))
+    dst, iou = bench.degraded_views(src, tmp_path / "out", "edge -2 px", 0)
+    out = np.asarray(Image.open(dst / "masks/000.png")) > 127
+    assert (out <= mask).all() and out.sum() < mask.sum()
+    assert np.isclose(iou, out.sum() / mask.sum())
+    assert (np.asarray(Image.open(src / "masks/000.png")) > 127).sum() == mask.sum()  # the source untouched
+    assert [bench.shift_of(n) for n in ("none", "edge -2 px", "edge +4 px", "hole")] == [0.0, -2.0, 4.0, None]
+    rows = bench.with_losses([{"case": "c", "seed": 0, "degradation": "none", "shape_iou": 0.9, "world_iou": 0.8},
+                              {"case": "c", "seed": 0, "degradation": "hole", "shape_iou": 0.85, "world_iou": 0.82}])
+    assert [(r["shape_loss"], r["world_loss"]) for r in rows] == [(0.0, 0.0), (0.05, -0.02)]

@@ -1,0 +1,98 @@
+"""Masks made wrong by known amounts, as a person's or a segmentation tool's masks are: the edge
+moved in or out, a ragged edge, a hole, a thin part missing. The mask-robustness benchmark
+(``bench/mask_robustness.py``) fits to each and reports what the error costs.
+
+Every function takes a boolean (H, W) mask and returns a new one of the same shape.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+
+def _disk(radius: float) -> np.ndarray:
+    """A boolean disk of ``radius`` pixels (centre pixel included), for morphology."""
+    r = int(np.ceil(radius))
+    y, x = np.mgrid[-r:r + 1, -r:r + 1]
+    return x * x + y * y <= radius * radius
+
+
+def _signed_distance(mask: np.ndarray) -> np.ndarray:
+    """Distance (pixels) from each pixel centre to the mask's edge, positive inside."""
+    return np.where(mask, ndimage.distance_transform_edt(mask), -ndimage.distance_transform_edt(~mask))
+
+
+def shift_edge(mask: np.ndarray, pixels: float) -> np.ndarray:
+    """The edge moved outwards by ``pixels`` (inwards where negative): the pixels whose centre lies
+    within that distance outside the edge join the mask (or, inwards, leave it)."""
+    mask = np.asarray(mask, bool)
+    if pixels == 0:
+        return mask.copy()
+    d = _signed_distance(mask)
+    return d > -abs(pixels) - 0.5 if pixels > 0 else d > abs(pixels) + 0.5
+
+
+def ragged_edge(mask: np.ndarray, amplitude: float, rng: np.random.Generator, scale: float = 6.0) -> np.ndarray:
+    """The edge moved in and out along its length by smooth noise of about ``amplitude`` pixels
+    (standard deviation), varying over ``scale`` pixels, as a careless brush or a coarse
+    segmentation leaves it."""
+    mask = np.asarray(mask, bool)
+    noise = ndimage.gaussian_filter(rng.standard_normal(mask.shape), scale)
+    noise *= amplitude / max(float(noise.std()), 1e-12)
+    return _signed_distance(mask) + noise > 0.5
+
+
+def hole(mask: np.ndarray, share: float = 0.5) -> np.ndarray:
+    """A round hole at the mask's deepest point, of radius ``share`` times that point's distance to
+    the edge (a highlight or a label the segmentation left out)."""
+    mask = np.asarray(mask, bool)
+    depth = ndimage.distance_transform_edt(mask)
+    cy, cx = np.unravel_index(int(np.argmax(depth)), mask.shape)
+    y, x = np.mgrid[:mask.shape[0], :mask.shape[1]]
+    return mask & ((y - cy) ** 2 + (x - cx) ** 2 > (share * depth[cy, cx]) ** 2)
+
+
+def drop_thin(mask: np.ndarray, width: float) -> np.ndarray:
+    """The mask without its parts thinner than ``width`` pixels (a morphological opening by a disk
+    of that diameter, then the largest piece alone): a handle, a pole or a thin branch the
+    segmentation lost, and what it cut off with it."""
+    mask = np.asarray(mask, bool)
+    opened = ndimage.binary_opening(mask, structure=_disk(width / 2))
+    labels, n = ndimage.label(opened)
+    if n <= 1:
+        return opened
+    sizes = ndimage.sum(opened, labels, index=np.arange(1, n + 1))
+    return labels == 1 + int(np.argmax(sizes))
+
+
+def extent(mask: np.ndarray) -> float:
+    """The larger side (pixels) of the mask's bounding box."""
+    rows, cols = np.nonzero(np.any(mask, 1))[0], np.nonzero(np.any(mask, 0))[0]
+    return float(max(np.ptp(rows), np.ptp(cols)) + 1) if len(rows) else 0.0
+
+
+DEGRADATIONS = {
+    "none": lambda m, rng: np.asarray(m, bool).copy(),
+    "edge -4 px": lambda m, rng: shift_edge(m, -4),
+    "edge -2 px": lambda m, rng: shift_edge(m, -2),
+    "edge -1 px": lambda m, rng: shift_edge(m, -1),
+    "edge +1 px": lambda m, rng: shift_edge(m, 1),
+    "edge +2 px": lambda m, rng: shift_edge(m, 2),
+    "edge +4 px": lambda m, rng: shift_edge(m, 4),
+    "ragged 2 px": lambda m, rng: ragged_edge(m, 2.0, rng),
+    "hole": lambda m, rng: hole(m, 0.5),
+    "thin part lost": lambda m, rng: drop_thin(m, 0.1 * extent(m)),
+}
+"""The benchmark's degradations by name (pixels at 256 px; the thin parts: under a tenth of the
+object's larger side), each ``(mask, rng) -> mask``."""
+
+
+def degrade(mask: np.ndarray, name: str, rng: np.random.Generator) -> np.ndarray:
+    """``mask`` degraded by the named entry of :data:`DEGRADATIONS` (``ValueError`` for an unknown
+    name; a degradation that empties the mask is an error, not a mask)."""
+    if name not in DEGRADATIONS:
+        raise ValueError(f"unknown mask degradation {name!r} (known: {', '.join(DEGRADATIONS)})")
+    out = DEGRADATIONS[name](mask, rng)
+    if not out.any():
+        raise ValueError(f"the degradation {name!r} leaves an empty mask")
+    return out
