@@ -30,13 +30,14 @@ def degraded_views(src: Path, dst: Path, name: str, seed: int) -> tuple[Path, fl
     from PIL import Image
 
     from ipm.degrade import degrade
+    from ipm.io.views import save_mask
 
     shutil.copytree(src, dst)
     frame = json.loads((dst / "transforms.json").read_text())["frames"][0]
     path = dst / frame["mask_path"]
     mask = np.asarray(Image.open(path).convert("L")) > 127
     out = degrade(mask, name, np.random.default_rng(seed))
-    Image.fromarray((out * 255).astype(np.uint8)).save(path)
+    save_mask(path, out)
     return dst, float((out & mask).sum() / (out | mask).sum())
 
 
