@@ -152,23 +152,23 @@ def read_colmap(model: str | Path, images: str | Path, masks: str | Path | None,
 
 def open_views(views: str | Path | None = None, up: str | None = None, colmap: str | Path | None = None,
                images: str | Path | None = None, masks: str | Path | None = None, image: str | Path | None = None,
-               mask: str | Path | None = None, fov: float | None = None) -> Views:
+               mask: str | Path | None = None, fov: float | None = None, segment: str | None = None) -> Views:
     """The input of a reconstruction or baseline: a ``transforms.json`` (its world's ``up`` axis,
     ``y`` by default), a COLMAP model with its images and masks folders (``auto`` by default), or
-    one photo (``image``, its ``mask`` or alpha channel, the ``fov`` in degrees if known) whose
+    one photo (``image``, its ``mask`` or alpha channel or its ``segment``-ed colours, the ``fov`` in degrees if known) whose
     camera is estimated (``ipm.photo``; so is a transforms.json's single frame without its pose:
     :func:`unposed_camera`); exactly one of the three."""
     if sum(x is not None for x in (views, colmap, image)) != 1:
         raise UserError("give one of --views transforms.json, --colmap MODEL (with --images, --masks) "
                         "or --image PHOTO (with --mask, else its alpha or colours)")
-    if (mask is not None or fov is not None) and image is None:
-        raise UserError("--mask and --fov go with --image (a photo whose camera is unknown)")
+    if (mask is not None or fov is not None or segment is not None) and image is None:
+        raise UserError("--mask, --fov and --segment go with --image (a photo whose camera is unknown)")
     if image is not None:
         from ipm.photo import photo_views
 
         if up is not None:
             raise UserError("--up does not apply to --image: the camera's pitch and roll are estimated")
-        return photo_views(image, mask, fov)
+        return photo_views(image, mask, fov, segment or "colour")
     if colmap is None:
         if images is not None or masks is not None:
             raise UserError("--images and --masks go with --colmap (a transforms.json names its own files)")

@@ -17,7 +17,7 @@ def _views(args):
     from ipm.capture import open_views
 
     return open_views(args.views, args.up, args.colmap, args.images, args.masks, getattr(args, "image", None),
-                      getattr(args, "mask", None), getattr(args, "fov", None))
+                      getattr(args, "mask", None), getattr(args, "fov", None), getattr(args, "segment", None))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -30,7 +30,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--views", type=int, default=1, help="number of views (view 0 is the input view)")
     s.add_argument("--res", type=int, default=256, help="image width and height in pixels")
     s.add_argument("--spp", type=int, default=64, help="samples per pixel of the RGB renders")
-    s.add_argument("--layout", default="hemi", help="views: hemi (input view + hemisphere) or ring (for COLMAP)")
+    s.add_argument("--layout", default="hemi", help="views: hemi (input view + hemisphere), ring (for COLMAP) or photo (hemi cameras, photograph-like JPEGs)")
 
     r = sub.add_parser("reconstruct", help="fit a procedural generator to masks")
     r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")
@@ -39,6 +39,9 @@ def _parser() -> argparse.ArgumentParser:
                    "(pitch, roll and field of view are estimated with the object; diff path)")
     r.add_argument("--mask", default=None, help="with --image: its mask (255 = object; default: the photo's alpha, "
                    "else segmented from its colours against a plain background)")
+    r.add_argument("--segment", default=None, choices=["colour", "learned"],
+                   help="with --image and no mask or alpha: colour (default; a plain background) or learned (a "
+                   "photograph with a ground, shadows and a backdrop: the learned segmenter refined by GrabCut)")
     r.add_argument("--fov", type=float, default=None, help="with --image: the horizontal field of view in degrees (default: from the "
                    "photo's Exif 35 mm focal length, else estimated)")
     r.add_argument("--fov-grid", type=float, nargs="*", default=None, metavar="DEG",
@@ -155,7 +158,7 @@ def _run(args) -> int:
         check_generator(args.method, args.generator)
         extra = {}
         if args.prepared is not None:
-            if method.prepare is None and args.method not in ("diff", "photo", "photo_fov"):  # their learned starts
+            if method.prepare is None and not (args.method == "diff" or method.withholds_camera):  # learned starts
                 raise UserError(f"method {args.method!r} has no preparation stage (--prepared)")
             if not Path(args.prepared).is_file():
                 raise UserError(f"--prepared: no such file {args.prepared}")

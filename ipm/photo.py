@@ -227,9 +227,9 @@ def exif_fov(focal_35mm: float, width: int, height: int) -> float:
     return float(2.0 * np.arctan(across / focal_35mm))
 
 
-def photo_views(image: str, mask: str | None = None, fov_deg: float | None = None) -> Views:
+def photo_views(image: str, mask: str | None = None, fov_deg: float | None = None, segment: str = "colour") -> Views:
     """One photo as views with an unknown camera: the mask from ``mask`` (255 = object), else the
-    photo's alpha or colours; the horizontal field of view ``fov_deg`` when known, else from the
+    photo's alpha, else segmented by ``segment`` (``ipm.io.views.SEGMENTERS``); the horizontal field of view ``fov_deg`` when known, else from the
     photo's Exif 35 mm equivalent focal length when it has one, else estimated."""
     from pathlib import Path
 
@@ -246,7 +246,8 @@ def photo_views(image: str, mask: str | None = None, fov_deg: float | None = Non
         raise UserError(f"--fov: needs 1 to 170 degrees (horizontal), got {fov_deg}")
     if fov_deg is None and focal_35mm:
         fov_deg = float(np.degrees(exif_fov(float(focal_35mm), width, height)))
-    m = _read_mask(Path(mask), width, height) if mask is not None else _read_mask(path, width, height, alpha=True)
+    m = _read_mask(Path(mask), width, height) if mask is not None else \
+        _read_mask(path, width, height, alpha=True, segment=segment)
     return unknown_camera_views(Views(np.radians(fov_deg) if fov_deg else DEFAULT_FOV, width, height, np.eye(4)[None],
                                       m[None], [{"file_path": str(path.resolve())}], path.parent),
                                 fov_known=fov_deg is not None)

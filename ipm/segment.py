@@ -1,4 +1,6 @@
-"""Masks from the image, for an object photographed on a plain background (no model weights).
+"""Masks from the image: for an object photographed on a plain background, by colour alone (no
+model weights, :func:`mask_from_image`); for a photograph with a ground, a shadow and a backdrop,
+by the learned segmenter refined by GrabCut (:func:`mask_from_photo`).
 
 A colour model of the background is fitted to the image's border (mean and covariance in CIELAB,
 refitted without the border pixels that look least like it, where the object touches the edge);
@@ -13,6 +15,8 @@ import numpy as np
 
 from ipm.errors import UserError
 
+SURE = 0.02
+"""Learned probabilities below this (above one minus it) fix a pixel as background (object) for GrabCut."""
 MARGIN = 2.0
 """A pixel is object where its distance to the background model is this many times the distance
 all but 0.5 % of the border stays under (at least 1: one CIELAB unit on a flat background)."""
@@ -33,12 +37,11 @@ def _distance(pixels: np.ndarray, sample: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("...i,ij,...j->...", d, np.linalg.inv(cov), d))
 
 
-def mask_from_image(rgb: np.ndarray) -> np.ndarray:
-    """Object mask (H, W) float32 in {0, 1} of an RGB image (H, W, 3; uint8, or float in [0, 1])
-    whose border shows the background; ``UserError`` when nothing stands out from it."""
+def _border_model(rgb: np.ndarray) -> tuple[np.ndarray, float]:
+    """Each pixel's distance (H, W) to the background model of the image's border and the distance
+    that counts as object (:data:`MARGIN` times the border's own 99.5th percentile); ``UserError``
+    for an image that is not RGB or when nothing stands out."""
     from skimage.color import rgb2lab
-    from skimage.measure import label
-    from skimage.morphology import disk, opening, remove_small_holes, remove_small_objects
 
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] < 3 or min(rgb.shape[:2]) < 16:
@@ -50,11 +53,20 @@ def mask_from_image(rgb: np.ndarray) -> np.ndarray:
     d_border = _distance(border, border)
     border = border[d_border <= np.quantile(d_border, 0.9)]  # the object where it touches the edge
     dist = _distance(lab, border)
-    floor = np.quantile(_distance(border, border), 0.995)
-    if dist.max() <= MARGIN * max(floor, 1.0):
+    threshold = MARGIN * max(float(np.quantile(_distance(border, border), 0.995)), 1.0)
+    if dist.max() <= threshold:
         raise UserError("no object stands out from the colours at the image's border: give a mask")
-    mask = opening(dist > MARGIN * max(floor, 1.0), disk(1))
-    area = h * w
+    return dist, threshold
+
+
+def _cleaned(mask: np.ndarray) -> np.ndarray:
+    """``mask`` without specks and small holes (large ones stay), keeping the components of at
+    least 5 % of the largest; float32 in {0, 1}; ``UserError`` if nothing is left."""
+    from skimage.measure import label
+    from skimage.morphology import disk, opening, remove_small_holes, remove_small_objects
+
+    area = mask.size
+    mask = opening(mask, disk(1))
     mask = remove_small_objects(mask, max_size=max(4, int(1e-4 * area)))
     mask = remove_small_holes(mask, max_size=max(4, int(1e-3 * area)))
     labels = label(mask)
@@ -63,3 +75,34 @@ def mask_from_image(rgb: np.ndarray) -> np.ndarray:
     sizes = np.bincount(labels.ravel())[1:]
     keep = np.nonzero(sizes >= 0.05 * sizes.max())[0] + 1
     return np.isin(labels, keep).astype(np.float32)
+
+
+def mask_from_image(rgb: np.ndarray) -> np.ndarray:
+    """Object mask (H, W) float32 in {0, 1} of an RGB image (H, W, 3; uint8, or float in [0, 1])
+    whose border shows the background; ``UserError`` when nothing stands out from it."""
+    dist, threshold = _border_model(rgb)
+    return _cleaned(dist > threshold)
+
+
+def mask_from_photo(rgb: np.ndarray, model=None) -> np.ndarray:
+    """Object mask (H, W) float32 in {0, 1} of a photograph (H, W, 3; uint8, or float in [0, 1]):
+    the learned segmenter's probability (``ipm.learned.segmenter``, ``model`` or the shipped one:
+    it tells the object from its ground, shadow and backdrop) starts OpenCV's GrabCut (the confident
+    object and background fixed, the rest probable), which sets the edges at the photo's size."""
+    import cv2
+
+    from ipm.learned.segmenter import probability
+
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] < 3 or min(rgb.shape[:2]) < 16:
+        raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
+    prob = probability(rgb, model)
+    img8 = rgb[..., :3] if rgb.dtype == np.uint8 else np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8)
+    gc = np.select([prob < SURE, prob > 1 - SURE, prob > 0.5], [cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_FGD],
+                   cv2.GC_PR_BGD).astype(np.uint8)
+    if not (gc == cv2.GC_FGD).any() and not (gc == cv2.GC_PR_FGD).any():
+        raise UserError("the segmenter finds no object in the photo: give a mask")
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(0)
+    cv2.grabCut(np.ascontiguousarray(img8), gc, None, bgd, fgd, 5, cv2.GC_INIT_WITH_MASK)
+    return _cleaned((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD))

@@ -4,11 +4,14 @@
 DIR/reference.ply and DIR/ground_truth.json, and DIR/semantic/ label images for classes that have
 them (trees: branch, foliage; buildings: wall, window, roof, door). In the ``hemi`` layout view 0 is the single
 input view (15-30 deg elevation) and further views lie on a Fibonacci hemisphere; the ``ring``
-layout (COLMAP) puts textured views on rings. All views share the world frame.
+layout (COLMAP) puts textured views on rings; the ``photo`` layout takes the ``hemi`` cameras and
+renders photographs (``ipm.render.photo_scene``: sky, sun, the object's shadow on a ground, a
+backdrop), written as JPEG, with the true masks beside them. All views share the world frame.
 """
 from __future__ import annotations
 
 import json
+import zlib
 from importlib import resources
 from pathlib import Path
 
@@ -98,10 +101,26 @@ def ground_truth_mesh(case: dict, lod: int | None = None):
     return v, np.asarray(f), np.asarray(labels), np.asarray(uv)
 
 
-LAYOUTS = ("hemi", "ring")
+LAYOUTS = ("hemi", "ring", "photo")
 """View layouts: ``hemi`` (view 0 is the input view, the rest on a Fibonacci hemisphere; the
-diffSDF views and ours) and ``ring`` (rings of at most 16 views, 22.5 degrees apart or closer,
-so neighbouring images share enough texture for SIFT matching; the COLMAP views)."""
+diffSDF views and ours), ``ring`` (rings of at most 16 views, 22.5 degrees apart or closer,
+so neighbouring images share enough texture for SIFT matching; the COLMAP views) and ``photo``
+(the ``hemi`` cameras, photograph-like images: :func:`photo_setting`)."""
+PHOTO_QUALITY = 88
+"""JPEG quality of the ``photo`` layout's images."""
+
+
+def photo_setting(case: str) -> dict:
+    """How a case is photographed in the ``photo`` layout, fixed by its name: the backdrop
+    (``ipm.render.photo_scene.BACKDROPS``), the scene's seed (the sun's direction, the ground's
+    pattern) and, for half the cases, a plain colour in place of the case's texture."""
+    from ipm.render.photo_scene import BACKDROPS
+
+    key = zlib.crc32(case.encode())
+    rng = np.random.default_rng(key)
+    plain = rng.uniform(0.05, 0.85, 3).round(3).tolist()
+    return {"backdrop": BACKDROPS[key % len(BACKDROPS)], "seed": key % 100_003,
+            "plain": plain if (key >> 3) % 2 else None}
 
 
 def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float, elevation: float,
@@ -109,7 +128,7 @@ def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float
     """Camera-to-world matrices of ``n_views`` views around the object in ``layout``, far enough
     that the bounding sphere fills the same share of a field of view ``fov_x`` at any lens."""
     dist = 1.3 * radius / np.sin(fov_x / 2)
-    if layout == "hemi":
+    if layout in ("hemi", "photo"):
         cams = [orbit_camera(center, dist, azimuth, elevation)]
         golden = np.pi * (3 - np.sqrt(5))
         for i in range(1, n_views):
@@ -134,11 +153,13 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     from ipm.io.semantic import save_labels
     from ipm.render.semantic import render_labels, render_tree_rgb
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.render.textured import render_rgb
+    from ipm.render.textured import procedural_texture, render_rgb
 
     if n_views < 1 or res < 16:
         raise UserError("need at least 1 view and 16 px")
     spec = load_case(case)
+    if layout == "photo" and is_tree_case(spec):
+        raise UserError(f"{case}: the photo layout renders cups and buildings, not trees")
     v, f, labels, uv = ground_truth_mesh(spec)
     lo, hi = v.min(0), v.max(0)
     center, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
@@ -154,14 +175,22 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
         if tree:  # varied browns and greens that labels_from_rgb reads; masks = labelled pixels
             rgb = render_tree_rgb(v, f, labels, c2w, fov, res, res, spp, spec.get("texture_seed", 0))
             masks = (semantic > 0).astype(np.float32)
+        elif layout == "photo":
+            from ipm.render.photo_scene import render_photo
+
+            shot = photo_setting(case)
+            rgb = render_photo(v, f, uv, c2w, fov, res, res, shot["backdrop"], shot["seed"],
+                               procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)
+            masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
         else:
             rgb = render_rgb(v, f, uv, c2w, fov, res, res, spec.get("texture_seed", 0), spp)
             masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
         frames = []
         for i in tqdm(range(n_views), desc=f"synth {case}", disable=not progress, leave=False):
-            save_rgb(tmp / "rgb" / f"{i:03d}.png", rgb[i])
+            name = f"rgb/{i:03d}.jpg" if layout == "photo" else f"rgb/{i:03d}.png"
+            save_rgb(tmp / name, rgb[i], PHOTO_QUALITY if layout == "photo" else None)
             save_mask(tmp / "masks" / f"{i:03d}.png", masks[i] > 0.5)
-            frames.append({"file_path": f"rgb/{i:03d}.png", "mask_path": f"masks/{i:03d}.png",
+            frames.append({"file_path": name, "mask_path": f"masks/{i:03d}.png",
                            "transform_matrix": c2w[i]})
             if scheme:
                 save_labels(tmp / "semantic" / f"{i:03d}.png", semantic[i], top)

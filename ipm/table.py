@@ -43,7 +43,8 @@ CLASS_NAMES = {"dishes": "cups", "trees": "trees", "buildings": "buildings"}
 """Table names of the classes, by the generator that reconstructs them."""
 WORDS = {"iou_mean": "world", "shape_iou": "shape"}
 """How a cell names an IoU that is not its table's metric."""
-CAMERA_WORDS = {"camera_pitch_err_deg": "pitch error {:.1f}°", "camera_fov_err_pct": "FOV error {:.1f}%"}
+CAMERA_WORDS = {"camera_pitch_err_deg": "pitch error {:.1f}°", "camera_fov_err_pct": "FOV error {:.1f}%",
+                "mask_iou": "mask IoU {:.3f}"}
 """How a camera-withheld row's cell gives the camera's errors (``CAMERA_COLUMNS``)."""
 _ROW_ID = re.compile(r"(?P<name>[a-z0-9_]+?)_(?P<views>[0-9]+)v(_[A-Za-z0-9_]+)?")
 

@@ -60,7 +60,8 @@ def test_a_photo_loads_with_an_unknown_camera(tmp_path, tiny_case):
 
 @pytest.mark.parametrize("problem, match", [
     ("no_image", "image not found"), ("bad_fov", "--fov: needs 1 to 170"),
-    ("two_frames", "an unknown camera needs exactly one view"), ("up", "--up does not apply")])
+    ("two_frames", "an unknown camera needs exactly one view"), ("up", "--up does not apply"),
+    ("segment_views", "--segment go with --image"), ("segment_name", "unknown segmenter 'grabcut'")])
 def test_photo_input_problems_are_clear(tmp_path, tiny_case, problem, match):
     frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
     args = dict(image=tiny_case / frame["file_path"], mask=tiny_case / frame["mask_path"])
@@ -70,6 +71,10 @@ def test_photo_input_problems_are_clear(tmp_path, tiny_case, problem, match):
         args["fov"] = float("nan")
     if problem == "up":
         args["up"] = "z"
+    if problem == "segment_views":
+        args = dict(views=tiny_case / "transforms.json", segment="learned")
+    if problem == "segment_name":
+        args = dict(image=tiny_case / frame["file_path"], segment="grabcut")
     if problem == "two_frames":
         data = json.loads((tiny_case / "transforms.json").read_text())
         for fr in data["frames"]:

@@ -91,20 +91,28 @@ class Views:
         return replace(self, c2w=self.c2w[idx], masks=masks, frames=[self.frames[i] for i in idx], semantics=semantics)
 
 
-def _read_mask(path: Path, width: int, height: int, alpha: bool = False) -> np.ndarray:
+SEGMENTERS = ("colour", "learned")
+"""How a photo without mask or alpha is segmented: ``colour`` (the colour model of its border, for
+a plain background: ``ipm.segment.mask_from_image``) or ``learned`` (a photograph with a ground,
+shadows and a backdrop: ``ipm.segment.mask_from_photo``)."""
+
+
+def _read_mask(path: Path, width: int, height: int, alpha: bool = False, segment: str = "colour") -> np.ndarray:
     """The object mask in ``path``; with ``alpha``, a photo's: its alpha channel (RGBA, LA), else
-    segmented from its colours against the background at its border (``ipm.segment``)."""
+    segmented from its colours by ``segment`` (:data:`SEGMENTERS`, ``ipm.segment``)."""
     if not path.is_file():
         raise UserError(f"mask file not found: {path}")
     try:
         img = np.asarray(Image.open(path))
     except Exception as exc:
         raise UserError(f"cannot read mask {path}: {exc}") from None
+    if segment not in SEGMENTERS:
+        raise UserError(f"unknown segmenter {segment!r} (known: {', '.join(SEGMENTERS)})")
     if alpha and img.ndim == 3 and img.shape[2] == 3:
-        from ipm.segment import mask_from_image
+        from ipm.segment import mask_from_image, mask_from_photo
 
         try:
-            img = (mask_from_image(img) * 255).astype(np.uint8)
+            img = ((mask_from_photo if segment == "learned" else mask_from_image)(img) * 255).astype(np.uint8)
         except UserError as exc:
             raise UserError(f"{path}: no mask given, no alpha channel, and {exc}") from None
     elif alpha:
@@ -283,13 +291,19 @@ def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
         img.save(tmp, format="PNG")
 
 
-def save_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write a linear float RGB image in [0, 1] as an sRGB 8-bit PNG, atomically."""
+def srgb_bytes(rgb: np.ndarray) -> np.ndarray:
+    """A linear float RGB image in [0, 1] as 8-bit sRGB."""
     x = np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    img = Image.fromarray((srgb * 255 + 0.5).astype(np.uint8))
+    return (srgb * 255 + 0.5).astype(np.uint8)
+
+
+def save_rgb(path: str | os.PathLike, rgb: np.ndarray, quality: int | None = None) -> None:
+    """Write a linear float RGB image in [0, 1] as an sRGB 8-bit PNG (a JPEG of ``quality``
+    where one is given), atomically."""
+    img = Image.fromarray(srgb_bytes(rgb))
     with atomic_path(path) as tmp:
-        img.save(tmp, format="PNG")
+        img.save(tmp, format="PNG") if quality is None else img.save(tmp, format="JPEG", quality=int(quality))
 
 
 def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,

@@ -58,6 +58,9 @@ class Method:
     """A first run of a case spends most of its time compiling JAX programs that its other seeds'
     runs would compile again (a cup's smoke fit: 33 s cold, 5 s reading them back): the pipeline
     runs a case's other seeds after its first instead of beside it."""
+    withholds_camera: bool = False
+    """The diff path with the input's camera withheld (the photo rows): its start is the
+    camera-hidden regressor's (``learned_photo``) where the profile asks for a learned camera."""
     scored_by: str = "iou_mean"
     """Table 1's headline metric for its rows: ``shape_iou`` where the camera is withheld (one
     uncalibrated photo fixes neither scale against distance nor a cup's lens), the world IoU beside it."""
@@ -115,10 +118,13 @@ def row_label(name: str, views: int) -> str:
 
 _DIFF = dict(layout="hemi", uses_generator=True, differentiable_only=True, length=1, compiles=True)
 declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF)
-declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_photo", **_DIFF,
-        scored_by="shape_iou")
-declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_DIFF,
-        scored_by="shape_iou")
+_PHOTO = dict(_DIFF, withholds_camera=True, scored_by="shape_iou")
+declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_photo", **_PHOTO)
+declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_PHOTO)
+declare("photo_image", "ours (diff, photo, image only, {views})", "ipm.methods.diff:run_photo_image",
+        **{**_PHOTO, "layout": "photo"})
+declare("photo_masked", "ours (diff, photo, image + mask, {views})", "ipm.methods.diff:run_photo",
+        **{**_PHOTO, "layout": "photo"})
 declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses_generator=True, length=2,
         prepare_entry="ipm.methods.ga:collect_generator_statistics", shipped="ipm.methods:prepared/ga_{generator}.json")
 declare("learned", "learned regressor ({views})", "ipm.methods.learned:run_learned", **{**_DIFF, "length": 0},

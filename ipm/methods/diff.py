@@ -147,6 +147,36 @@ def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes"
     return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
 
 
+def run_photo_image(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
+                    seed: int = 0, progress: bool = True, n_input_views: int | None = 1, prepared=None,
+                    **overrides) -> dict:
+    """The camera-withheld row from the photo alone: the first view's image segmented
+    (``ipm.segment.mask_from_photo``) in place of its mask, which only scores the segmentation
+    (``segmentation`` in params.json: the mask's IoU with the true one); then as :func:`run_photo`."""
+    from PIL import Image
+
+    from ipm.errors import UserError
+    from ipm.photo import scored_placement, withheld
+    from ipm.segment import mask_from_photo
+
+    t0 = time.perf_counter()
+    given = open_views(views_path).first(1)
+    with Image.open(given.root / given.frames[0]["file_path"]) as img:
+        rgb = np.asarray(img.convert("RGB"))
+    if rgb.shape[:2] != given.masks[0].shape:
+        raise UserError(f"{views_path}: the first image is {rgb.shape[1]}x{rgb.shape[0]} px, its views "
+                        f"{given.width}x{given.height}")
+    mask = mask_from_photo(rgb)
+    truth = given.masks[0] > 0.5
+    mask_iou = float((truth & (mask > 0.5)).sum() / max((truth | (mask > 0.5)).sum(), 1))
+    problem, z, trace, prof = fit(withheld(replace(given, masks=mask[None]), False), generator, profile, seed,
+                                  progress, prepared, **overrides)
+    place, placed = scored_placement(problem, z, given)
+    info = {"method": "photo_image", "profile": profile, "seed": seed, **placed,
+            "segmentation": {"mask_iou": round(mask_iou, 4)}}
+    return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
+
+
 def run_photo_fov(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
                   seed: int = 0, progress: bool = True, n_input_views: int | None = 1, prepared=None,
                   **overrides) -> dict:

@@ -64,7 +64,7 @@ def true_parameters(case: dict):
     return gen, gen.spec.clip(gen.spec.from_dict(src.get("params", {}), base))
 
 
-CAMERA_COLUMNS = ("camera_pitch_err_deg", "camera_fov_err_pct")
+CAMERA_COLUMNS = ("camera_pitch_err_deg", "camera_fov_err_pct", "mask_iou")
 
 
 def camera_recovery(params: dict | None) -> dict:
@@ -72,12 +72,16 @@ def camera_recovery(params: dict | None) -> dict:
     ``ipm.photo.camera_errors``): the absolute pitch error in degrees and the absolute field-of-view
     error in percent, judged against 3 degrees and 10 %; empty otherwise. A pitch error moves
     the object along the ground and scales it in the world (``ipm.photo.registration``), so this
-    tells a misplaced good shape (``shape_iou`` high, ``iou_mean`` low) from a bad one."""
+    tells a misplaced good shape (``shape_iou`` high, ``iou_mean`` low) from a bad one. A fit whose
+    mask was segmented from the photo (``segmentation`` in params.json) adds that mask's IoU with
+    the true one (``mask_iou``)."""
     err = (params or {}).get("camera_error")
     if not err:
         return {}
-    return {"camera_pitch_err_deg": abs(float(err["pitch_deg"])),
-            "camera_fov_err_pct": 100.0 * abs(float(err["fov_rel"]))}
+    out = {"camera_pitch_err_deg": abs(float(err["pitch_deg"])),
+           "camera_fov_err_pct": 100.0 * abs(float(err["fov_rel"]))}
+    segmented = (params or {}).get("segmentation")
+    return {**out, "mask_iou": float(segmented["mask_iou"])} if segmented else out
 
 
 def parameter_recovery(case: dict, params: dict | None, reference_height: float, mesh_height: float,

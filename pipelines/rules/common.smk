@@ -25,7 +25,7 @@ wildcard_constraints:
     name="[a-z0-9_]+",
     method="[a-z0-9_]+",
     generator="[a-z0-9_]+",
-    layout="hemi|ring",
+    layout="hemi|ring|photo",
     n="[0-9]+",
 
 
@@ -206,7 +206,7 @@ def _preparation(name, settings):
     if name == "diff" and prof.loop.start == "learned":
         return "learned"
     if (
-        name in ("photo", "photo_fov")
+        METHODS[name].withholds_camera
         and prof.of(CameraSettings).camera_start == "learned"
         and not prof.of(CameraSettings).fov_grid
     ):

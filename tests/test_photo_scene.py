@@ -1,0 +1,181 @@
+"""Photograph-like references (``ipm.render.photo_scene``, the ``photo`` layout of synth), the
+learned segmenter (``ipm.learned.segmenter``, ``ipm.segment.mask_from_photo``) and the photo rows."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from ipm.errors import UserError
+
+
+def _box(lo=(-0.3, 0.0, -0.3), hi=(0.3, 0.8, 0.3)):
+    import trimesh
+
+    box = trimesh.creation.box(bounds=np.array([lo, hi]))
+    return np.asarray(box.vertices), np.asarray(box.faces), np.zeros((len(box.vertices), 2))
+
+
+@pytest.fixture(scope="module")
+def photo_case(tmp_path_factory, mitsuba_cpu):
+    """cup_1 in the photo layout at 96 px: one photograph-like view and its true mask."""
+    from ipm.synth import synthesize
+
+    out = tmp_path_factory.mktemp("photo") / "cup_1"
+    synthesize("cup_1", out, n_views=1, res=96, spp=8, progress=False, layout="photo")
+    return out
+
+
+@pytest.mark.parametrize("backdrop", ["gradient", "table", "floor"])
+def test_the_object_casts_its_shadow_on_the_ground(mitsuba_cpu, backdrop):
+    """The ground beside the box on the far side from the sun is darker, against the ground on the
+    sun's side, than in the same scene without the box; the image is finite in [0, 1]."""
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.photo_scene import render_photo, sun_direction
+
+    v, f, uv = _box()
+    c2w = orbit_camera(np.array([0.0, 0.4, 0.0]), 3.0, 20.0, 25.0)[None]
+    with_box = render_photo(v, f, uv, c2w, 0.7, 48, 48, backdrop, seed=3, plain=(0.8, 0.1, 0.1), spp=16)[0]
+    assert with_box.shape == (48, 48, 3) and np.isfinite(with_box).all()
+    assert with_box.min() >= 0 and with_box.max() <= 1
+    light = sun_direction(np.random.default_rng(3))
+    away = np.array([light[0], 0.0, light[2]]) / np.hypot(light[0], light[2])
+    from ipm.render.cameras import project
+
+    # ground points outside the box: on the far side from the sun (shadowed) and on its side (lit)
+    (sx, sy), (lx, ly) = project(np.stack([0.55 * away, -0.55 * away]), c2w[0], 0.7, 48, 48).astype(int)
+    tiny = _box((-0.01, 0.0, -0.01), (0.01, 0.02, 0.01))  # the same scene's ground, the box almost gone
+    bare = render_photo(*tiny, c2w, 0.7, 48, 48, backdrop, seed=3, plain=(0.8, 0.1, 0.1), spp=16)[0]
+
+    def ratio(img):  # shadowed over lit ground: exposure and the ground's pattern cancel against ``bare``
+        return img[sy - 1:sy + 2, sx - 1:sx + 2].mean() / img[ly - 1:ly + 2, lx - 1:lx + 2].mean()
+
+    shade = ratio(with_box) / ratio(bare)
+    assert shade < 0.75, (backdrop, shade)
+
+
+def test_unknown_backdrops_are_refused():
+    from ipm.render.photo_scene import ground_texture
+
+    with pytest.raises(ValueError, match="unknown backdrop 'moon'"):
+        ground_texture("moon", np.random.default_rng(0))
+
+
+def test_the_photo_layout_writes_jpegs_and_true_masks(photo_case):
+    """JPEG photographs (the ground fills the frame: no pixel is the flat background of the other
+    layouts), true masks beside them, and the case's photo setting fixed by its name."""
+    from ipm.synth import photo_setting
+
+    meta = json.loads((photo_case / "transforms.json").read_text())
+    frame = meta["frames"][0]
+    assert frame["file_path"].endswith(".jpg")
+    with Image.open(photo_case / frame["file_path"]) as img:
+        assert img.format == "JPEG" and img.size == (96, 96)
+        rgb = np.asarray(img.convert("RGB")).astype(float)
+    mask = np.asarray(Image.open(photo_case / frame["mask_path"])) > 127
+    assert 0.05 < mask.mean() < 0.8
+    assert rgb[~mask].std() > 3  # a lit, textured ground and sky, not one flat colour
+    assert photo_setting("cup_1") == photo_setting("cup_1") and photo_setting("cup_1")["backdrop"]
+
+
+def test_the_photo_layout_refuses_trees(tmp_path, mitsuba_cpu):
+    from ipm.synth import synthesize
+
+    with pytest.raises(UserError, match="photo layout renders cups and buildings"):
+        synthesize("tree_1", tmp_path / "t", res=32, spp=2, progress=False, layout="photo")
+
+
+def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu):
+    """Two training photos (a cup and a building on random grounds): uint8 images at the network's
+    size, masks that cover part of the frame, and the object's pixels unlike the ground's."""
+    from ipm.learned.segmenter import SEG_RES, make_photos
+
+    data = make_photos(2, seed=5, spp=4)
+    assert data["image"].shape == (2, SEG_RES, SEG_RES, 3) and data["image"].dtype == np.uint8
+    assert data["mask"].shape == (2, SEG_RES, SEG_RES)
+    for image, mask in zip(data["image"].astype(float), data["mask"]):
+        assert 0.02 < mask.mean() < 0.8
+        assert np.abs(image[mask].mean(0) - image[~mask].mean(0)).max() > 2
+    again = make_photos(2, seed=5, spp=4)
+    assert np.array_equal(again["mask"], data["mask"])  # seeded: the same objects and views
+
+
+def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu):
+    """A few steps on four photos lower the loss; the weights written and read back give the same
+    probabilities; a file of another kind is one clear error."""
+    import jax
+
+    from ipm.learned.network import save
+    from ipm.learned.segmenter import FORMAT, PROFILES, fit, load, make_photos, probabilities
+
+    settings = PROFILES["smoke"].updated(steps=30, samples=4, held_out=0, learning_rate=3e-3)
+    data = make_photos(4, seed=1, spp=4)
+    model, meta = fit(settings, 0, data=data)
+    first = fit(settings.updated(steps=1), 0, data=data)[1]["final_loss"]
+    assert meta["final_loss"] < first
+    save(model, tmp_path / "seg.json", meta, FORMAT)
+    back = load(str(tmp_path / "seg.json"))
+    p1, p2 = probabilities(model, data["image"]), probabilities(back, data["image"])
+    assert p1.shape == data["mask"].shape and np.abs(p1 - p2).max() < 2e-2  # float16 storage
+    assert jax.tree_util.tree_structure(model) == jax.tree_util.tree_structure(back)
+    (tmp_path / "bad.json").write_text('{"format": "ipm-learned-regressor/1"}')
+    with pytest.raises(UserError, match="not a segmenter's weights"):
+        load(str(tmp_path / "bad.json"))
+
+
+def test_the_shipped_segmenter_keeps_the_shadow_and_the_ground_out(photo_case):
+    """On a photograph-like view of a dev cup (never trained on: the segmenter saw generator
+    samples only), the learned mask refined by GrabCut is close to the true mask, and much closer
+    than the colour model of the border, which takes the shadow and the ground in."""
+    from ipm.segment import mask_from_image, mask_from_photo
+
+    frame = json.loads((photo_case / "transforms.json").read_text())["frames"][0]
+    rgb = np.asarray(Image.open(photo_case / frame["file_path"]).convert("RGB"))
+    truth = np.asarray(Image.open(photo_case / frame["mask_path"])) > 127
+    iou = lambda m: ((m > 0.5) & truth).sum() / ((m > 0.5) | truth).sum()  # noqa: E731
+    learned = iou(mask_from_photo(rgb))
+    assert learned > 0.9, learned
+    from ipm.capture import open_views  # a user's photo: ipm reconstruct --image P --segment learned
+
+    assert iou(open_views(image=photo_case / frame["file_path"], segment="learned").masks[0]) == learned
+    with pytest.raises(UserError, match="cannot segment an image of shape"):
+        mask_from_photo(rgb[:8])
+    try:
+        border = iou(mask_from_image(rgb))
+    except UserError:
+        border = 0.0
+    assert learned > border
+
+
+@pytest.mark.slow
+def test_the_photo_rows_segment_the_image_or_take_the_mask(tmp_path, photo_case):
+    """``photo_image`` segments the photograph and records that mask's IoU with the true one;
+    ``photo_masked`` reads the true mask; both withhold the camera, and the table gives the mask's
+    IoU beside the image-only row."""
+    from ipm.methods import METHODS
+    from ipm.metrics.recovery import camera_recovery
+
+    image = METHODS["photo_image"](photo_case / "transforms.json", tmp_path / "image", generator="dishes",
+                                   profile="smoke", progress=False)
+    masked = METHODS["photo_masked"](photo_case / "transforms.json", tmp_path / "masked", generator="dishes",
+                                     profile="smoke", progress=False)
+    assert 0.8 < image["segmentation"]["mask_iou"] <= 1.0 and "segmentation" not in masked
+    assert (tmp_path / "image" / "mesh.ply").is_file() and (tmp_path / "masked" / "mesh.ply").is_file()
+    assert camera_recovery(image)["mask_iou"] == image["segmentation"]["mask_iou"]
+    assert "mask_iou" not in camera_recovery(masked)
+    assert METHODS["photo_image"].layout == METHODS["photo_masked"].layout == "photo"
+
+
+def test_the_shipped_segmenter_is_the_default_budgets_seed_0():
+    """``python -m ipm.learned.segmenter`` made the shipped file: a changed budget without new
+    weights fails here."""
+    from dataclasses import asdict
+
+    from ipm.learned.segmenter import FORMAT, PROFILES, SEG_RES, WIDTHS, shipped_path
+
+    record = json.loads(shipped_path().read_text())
+    assert record["format"] == FORMAT and record["seed"] == 0
+    assert record["settings"] == asdict(PROFILES["default"])
+    assert record["res"] == SEG_RES and tuple(record["widths"]) == WIDTHS
