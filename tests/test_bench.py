@@ -70,3 +70,20 @@ def test_mask_robustness_degrades_the_input_mask_and_measures_against_the_true_m
     rows = bench.with_losses([{"case": "c", "seed": 0, "degradation": "none", "shape_iou": 0.9, "world_iou": 0.8},
                               {"case": "c", "seed": 0, "degradation": "hole", "shape_iou": 0.85, "world_iou": 0.82}])
     assert [(r["shape_loss"], r["world_loss"]) for r in rows] == [(0.0, 0.0), (0.05, -0.02)]
+
+
+def test_segmentation_scores_masks_and_groups_them_by_class_family_and_backdrop():
+    """IoU of a mask with the truth, and the summary's means and worst per group."""
+    seg = _script("segmentation")
+    truth = np.zeros((4, 4), bool)
+    truth[:2] = True
+    half = np.zeros((4, 4))
+    half[0] = 1.0
+    assert seg.score(half, truth) == 0.5 and seg.score(truth.astype(float), truth) == 1.0
+    rows = [{"case": "a", "backdrop": "table", "class": "cups", "family": "in", "colour": 0.5, "learned": 0.9},
+            {"case": "a", "backdrop": "floor", "class": "cups", "family": "in", "colour": 0.7, "learned": 0.8},
+            {"case": "b", "backdrop": "table", "class": "buildings", "family": "out", "colour": 0.9, "learned": 1.0}]
+    out = seg.summary(rows, ["colour", "learned"])
+    assert out["all"]["colour"] == {"mean": 0.7, "worst": 0.5, "n": 3}
+    assert out["cups in"]["learned"] == {"mean": 0.85, "worst": 0.8, "n": 2}
+    assert out["table"]["learned"]["mean"] == 0.95 and out["buildings out"]["colour"]["n"] == 1

@@ -1,0 +1,108 @@
+"""Benchmark: masks from a photograph. Each case is rendered as a photograph (``ipm.render.photo_scene``:
+sky, sun, its shadow on a ground) on every backdrop, from its input camera, with the case's
+photo setting (``ipm.synth.photo_setting``: scene seed, texture or plain colour), and JPEG at the
+photo layout's quality; each segmenter's mask is scored by its IoU with the true mask, per case and
+backdrop, with the means per class and family.
+
+    .venv/bin/python bench/segmentation.py [--cases cup_1 building_1] [--res 256] [--spp 128]
+        [--out results/bench/segmentation.json]
+
+Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border) and
+``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut). Tune nothing on
+test cases: the defaults are the dev cups and buildings.
+"""
+from __future__ import annotations
+
+import argparse
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+DEV = ["cup_1", "cup_2", "cup_d1", "cup_d2", "cup_d3", "cup_d4", "cup_bowl", "cup_c_mug", "cup_c_mug_steep", "cup_ext",
+       "building_1", "building_d3", "building_d9", "building_d11", "building_d20", "building_d25", "building_annex",
+       "building_ext", "building_t_house"]
+
+
+def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
+    """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask."""
+    from PIL import Image
+
+    from ipm.io.views import srgb_bytes
+    from ipm.render.photo_scene import render_photo
+    from ipm.render.silhouette import SilhouetteRenderer
+    from ipm.render.textured import procedural_texture
+    from ipm.synth import PHOTO_QUALITY, case_fov, ground_truth_mesh, load_case, photo_setting, view_cameras
+
+    spec = load_case(case)
+    v, f, _, uv = ground_truth_mesh(spec)
+    lo, hi = v.min(0), v.max(0)
+    cam, fov = spec.get("camera", {}), case_fov(spec)
+    c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
+                       cam.get("elevation_deg", 22.0), "photo", fov)
+    shot = photo_setting(case)
+    linear = render_photo(v, f, uv, c2w, fov, res, res, backdrop, shot["seed"],
+                          procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)[0]
+    buf = io.BytesIO()
+    Image.fromarray(srgb_bytes(linear)).save(buf, format="JPEG", quality=PHOTO_QUALITY)
+    truth = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)[0] > 0.5
+    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB")), truth
+
+
+def score(mask: np.ndarray, truth: np.ndarray) -> float:
+    m = mask > 0.5
+    return float((m & truth).sum() / max((m | truth).sum(), 1))
+
+
+def summary(rows: list[dict], segmenters: list[str]) -> dict:
+    """Mean and worst mask IoU per segmenter over all rows, per class and family, and per backdrop."""
+    groups = {"all": rows}
+    for r in rows:
+        groups.setdefault(f"{r['class']} {r['family']}", []).append(r)
+        groups.setdefault(r["backdrop"], []).append(r)
+    return {g: {s: {"mean": round(float(np.mean([r[s] for r in rs])), 4), "worst": round(min(r[s] for r in rs), 4),
+                    "n": len(rs)} for s in segmenters} for g, rs in groups.items()}
+
+
+def main(argv: list[str] | None = None) -> None:
+    from tqdm import tqdm
+
+    from ipm.errors import UserError
+    from ipm.io import write_json
+    from ipm.render.photo_scene import BACKDROPS
+    from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.segment import mask_from_image, mask_from_photo
+    from ipm.synth import load_case
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", nargs="+", default=DEV)
+    ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--spp", type=int, default=128)
+    ap.add_argument("--out", default="results/bench/segmentation.json")
+    args = ap.parse_args(argv)
+    configure_threads(1, "cpu")
+    set_mitsuba_variant("cpu", 1)
+    segmenters = {"colour": mask_from_image, "learned": mask_from_photo}
+    rows = []
+    for case in tqdm(args.cases, desc="cases"):
+        spec = load_case(case)
+        for backdrop in BACKDROPS:
+            rgb, truth = photograph(case, backdrop, args.res, args.spp)
+            row = {"case": case, "backdrop": backdrop, "class": "cups" if spec["generator"] == "dishes" else "buildings",
+                   "family": "in" if "generator" in spec["source"] else "out"}
+            for name, fn in segmenters.items():
+                try:
+                    row[name] = round(score(fn(rgb), truth), 4)
+                except UserError:
+                    row[name] = 0.0
+            rows.append(row)
+    out = {"res": args.res, "spp": args.spp, "rows": rows, "summary": summary(rows, list(segmenters))}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    write_json(args.out, out)
+    for group, by in out["summary"].items():
+        print(f"{group:16s}", "  ".join(f"{s} {v['mean']:.3f} (worst {v['worst']:.3f}, n {v['n']})" for s, v in by.items()))
+
+
+if __name__ == "__main__":
+    main()
