@@ -23,16 +23,15 @@ import numpy as np
 from ipm.errors import UserError
 
 CHANNELS = (16, 32, 64, 64)
-"""Convolution widths at ``width`` 1, each a 3 x 3 stride-2 layer: 64 px in, 4 x 4 out."""
+"""Convolution widths, each a 3 x 3 stride-2 layer: 64 px in, 4 x 4 out."""
 HIDDEN = 256
-"""Width of the two fully connected layers after the convolutions at ``width`` 1."""
+"""Width of the two fully connected layers after the convolutions."""
 FORMAT = "ipm-learned-regressor/1"
 
 
 class Regressor(eqx.Module):
     """Image (C, R, R) and camera numbers (N_COND,) -> (unit params, discrete logits, yaw, pose; the
-    pose with the camera's pitch and lens for the camera-hidden variant, ``n_pose`` 5). ``width``
-    multiplies every layer's width (:data:`CHANNELS`, :data:`HIDDEN`)."""
+    pose with the camera's pitch and lens for the camera-hidden variant, ``n_pose`` 5)."""
 
     convs: list
     fc: list
@@ -42,13 +41,13 @@ class Regressor(eqx.Module):
     n_pose: int = eqx.field(static=True)
 
     def __init__(self, in_channels: int, res: int, n_cond: int, n_cont: int, levels: tuple[int, ...], key,
-                 n_pose: int = 3, width: int = 1):
+                 n_pose: int = 3):
         keys = jax.random.split(key, len(CHANNELS) + 3)
-        self.convs = conv_stack(in_channels, keys[:len(CHANNELS)], width)
-        flat, hidden = conv_features_size(res, width), HIDDEN * width
-        self.fc = [eqx.nn.Linear(flat + n_cond, hidden, key=keys[-3]), eqx.nn.Linear(hidden, hidden, key=keys[-2])]
+        self.convs = conv_stack(in_channels, keys[:len(CHANNELS)])
+        flat = conv_features_size(res)
+        self.fc = [eqx.nn.Linear(flat + n_cond, HIDDEN, key=keys[-3]), eqx.nn.Linear(HIDDEN, HIDDEN, key=keys[-2])]
         self.n_cont, self.levels, self.n_pose = n_cont, tuple(int(v) for v in levels), int(n_pose)
-        self.head = eqx.nn.Linear(hidden, n_cont + sum(self.levels) + 2 + self.n_pose, key=keys[-1])
+        self.head = eqx.nn.Linear(HIDDEN, n_cont + sum(self.levels) + 2 + self.n_pose, key=keys[-1])
 
     def __call__(self, image, cond):
         h = jnp.concatenate([conv_features(self.convs, image), cond])
@@ -62,16 +61,15 @@ class Regressor(eqx.Module):
         return cont, logits, yaw, out[-self.n_pose:]
 
 
-def conv_stack(in_channels: int, keys, width: int = 1) -> list:
-    """The image encoder's layers: one 3 x 3 stride-2 convolution per width of :data:`CHANNELS`
-    (times ``width``)."""
-    widths = (in_channels,) + tuple(c * width for c in CHANNELS)
+def conv_stack(in_channels: int, keys) -> list:
+    """The image encoder's layers: one 3 x 3 stride-2 convolution per width of :data:`CHANNELS`."""
+    widths = (in_channels,) + CHANNELS
     return [eqx.nn.Conv2d(a, b, 3, stride=2, padding=1, key=k) for a, b, k in zip(widths[:-1], widths[1:], keys)]
 
 
-def conv_features_size(res: int, width: int = 1) -> int:
-    """Length of :func:`conv_features` for a ``res`` x ``res`` image (layers ``width`` times as wide)."""
-    return CHANNELS[-1] * width * (res // 2 ** len(CHANNELS)) ** 2
+def conv_features_size(res: int) -> int:
+    """Length of :func:`conv_features` for a ``res`` x ``res`` image."""
+    return CHANNELS[-1] * (res // 2 ** len(CHANNELS)) ** 2
 
 
 def conv_features(convs: list, image):
@@ -101,11 +99,10 @@ def save(model: eqx.Module, path: str | Path, meta: dict, fmt: str = FORMAT) -> 
 
 def load(path: str | Path, expect_generator: str | None = None) -> tuple[Regressor, dict]:
     """The model and its metadata from a file written by :func:`save` (``UserError`` for a missing
-    or malformed file, or one made for another generator); its layers as wide as its training's
-    ``width`` (1 where the file names none)."""
+    or malformed file, or one made for another generator)."""
     return load_model(path, FORMAT, "a learned regressor's", lambda r: Regressor(
         r["in_channels"], r["res"], r["n_cond"], r["n_cont"], tuple(r["levels"]), jax.random.PRNGKey(0),
-        len(r["pose_mean"]), int((r.get("settings") or {}).get("width", 1))),
+        len(r["pose_mean"])),
         expect_generator)
 
 

@@ -31,8 +31,6 @@ class TrainSettings(Settings):
     learning_rate: Annotated[float, Range(1e-6, 1.0)] = 1e-3
     pose_weight: Annotated[float, at_least(0.0)] = 1.0
     """Weight of the pose terms (yaw and offsets) against the parameters' in the loss."""
-    width: Annotated[int, at_least(1)] = 1
-    """How many times as wide as ``ipm.learned.network``'s base widths every layer is."""
 
 
 TRAIN_PROFILES = {
@@ -165,7 +163,7 @@ def fit(gen, settings: TrainSettings, seed: int, progress: bool = False, data: d
     levels = tuple(int(v) for v in (spec.upper - spec.lower + 1)[spec.discrete])
     key = jax.random.PRNGKey(seed)
     model = Regressor(train["image"].shape[1], NET_RES, N_COND, int((~spec.discrete).sum()), levels, key,
-                      n_pose=train["pose"].shape[1], width=settings.width)
+                      n_pose=train["pose"].shape[1])
     schedule = optax.cosine_decay_schedule(settings.learning_rate, settings.steps)
     opt = optax.adam(schedule)
     state = opt.init(eqx.filter(model, eqx.is_array))
