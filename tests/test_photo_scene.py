@@ -90,7 +90,8 @@ def test_the_photo_layout_refuses_trees(tmp_path, mitsuba_cpu):
 def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu):
     """Two training photos (a cup and a building on random grounds): uint8 images at the network's
     size, masks that cover part of the frame, and the object's pixels unlike the ground's."""
-    from ipm.learned.segmenter import SEG_RES, make_photos
+    from ipm.learned.segmenter import SEG_RES
+    from ipm.learned.segmenter_training import make_photos
 
     data = make_photos(2, seed=5, spp=4)
     assert data["image"].shape == (2, SEG_RES, SEG_RES, 3) and data["image"].dtype == np.uint8
@@ -108,7 +109,8 @@ def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu):
     import jax
 
     from ipm.learned.network import save
-    from ipm.learned.segmenter import FORMAT, PROFILES, fit, load, make_photos, probabilities
+    from ipm.learned.segmenter import FORMAT, load, probabilities
+    from ipm.learned.segmenter_training import PROFILES, fit, make_photos
 
     settings = PROFILES["smoke"].updated(steps=30, samples=4, held_out=0, learning_rate=3e-3)
     data = make_photos(4, seed=1, spp=4)
@@ -169,11 +171,12 @@ def test_the_photo_rows_segment_the_image_or_take_the_mask(tmp_path, photo_case)
 
 
 def test_the_shipped_segmenter_is_the_default_budgets_seed_0():
-    """``python -m ipm.learned.segmenter`` made the shipped file: a changed budget without new
-    weights fails here."""
+    """``python -m ipm.learned.segmenter_training`` made the shipped file: a changed budget without
+    new weights fails here."""
     from dataclasses import asdict
 
-    from ipm.learned.segmenter import FORMAT, PROFILES, SEG_RES, WIDTHS, shipped_path
+    from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, shipped_path
+    from ipm.learned.segmenter_training import PROFILES
 
     record = json.loads(shipped_path().read_text())
     assert record["format"] == FORMAT and record["seed"] == 0

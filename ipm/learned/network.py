@@ -90,7 +90,7 @@ def save(model: eqx.Module, path: str | Path, meta: dict, fmt: str = FORMAT) -> 
     """Write the model (its weights rounded to float16, base64: half the size, proposals the same to
     a few parts in ten thousand) and ``meta`` (the generator, the layout the weights need, training
     facts) into one JSON file marked ``fmt``, atomically."""
-    from ipm.io import write_json
+    from ipm.io.atomic import write_json
 
     buf = io.BytesIO()
     eqx.tree_serialise_leaves(buf, _cast(model, jnp.float16))
