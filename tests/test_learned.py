@@ -93,13 +93,15 @@ def test_the_input_is_the_crop_wherever_the_object_sits():
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """A regressor for the cups trained on a small set (the issue's check: it must beat the mean
-    prediction on held-out samples), saved as the workflow saves it."""
+    """A regressor for the cups trained on a small set (it must beat the mean prediction on
+    held-out samples), saved as the workflow saves it."""
     from ipm.learned.network import save
     from ipm.learned.train import TrainSettings, fit
 
     gen = get_generator("dishes")
-    settings = TrainSettings(samples=480, held_out=120, steps=500, batch=32, learning_rate=2e-3)
+    # 1,000 steps: at 500 the discrete accuracy sat at the most frequent values' (0.475 against
+    # 0.492 on one AVX-512 CPU, above it on another); at 1,000 it is 0.62 against 0.49
+    settings = TrainSettings(samples=480, held_out=120, steps=1000, batch=32, learning_rate=2e-3)
     model, meta = fit(gen, settings, seed=0)
     path = tmp_path_factory.mktemp("learned") / "dishes.json"
     save(model, path, meta)
