@@ -103,6 +103,7 @@ def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu):
     assert np.array_equal(again["mask"], data["mask"])  # seeded: the same objects and views
 
 
+@pytest.mark.slow
 def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu):
     """A few steps on four photos lower the loss; the weights written and read back give the same
     probabilities; a file of another kind is one clear error."""
