@@ -14,7 +14,6 @@ test cases: the defaults are the dev cups and buildings.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 from pathlib import Path
 
@@ -27,13 +26,9 @@ DEV = ["cup_1", "cup_2", "cup_d1", "cup_d2", "cup_d3", "cup_d4", "cup_bowl", "cu
 
 def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
     """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask."""
-    from PIL import Image
-
-    from ipm.io.views import srgb_bytes
-    from ipm.render.photo_scene import render_photo
+    from ipm.io.views import jpeg_roundtrip, srgb_bytes
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.render.textured import procedural_texture
-    from ipm.synth import PHOTO_QUALITY, case_fov, ground_truth_mesh, load_case, photo_setting, view_cameras
+    from ipm.synth import PHOTO_QUALITY, case_fov, ground_truth_mesh, load_case, photographs, view_cameras
 
     spec = load_case(case)
     v, f, _, uv = ground_truth_mesh(spec)
@@ -41,18 +36,16 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     cam, fov = spec.get("camera", {}), case_fov(spec)
     c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
                        cam.get("elevation_deg", 22.0), "photo", fov)
-    shot = photo_setting(case)
-    linear = render_photo(v, f, uv, c2w, fov, res, res, backdrop, shot["seed"],
-                          procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)[0]
-    buf = io.BytesIO()
-    Image.fromarray(srgb_bytes(linear)).save(buf, format="JPEG", quality=PHOTO_QUALITY)
+    linear = photographs(case, spec, v, f, uv, c2w, fov, res, spp, backdrop)[0]
     truth = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)[0] > 0.5
-    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB")), truth
+    return jpeg_roundtrip(srgb_bytes(linear), PHOTO_QUALITY), truth
 
 
 def score(mask: np.ndarray, truth: np.ndarray) -> float:
-    m = mask > 0.5
-    return float((m & truth).sum() / max((m | truth).sum(), 1))
+    """The IoU of ``mask > 0.5`` with the true mask."""
+    from ipm.metrics.silhouette import view_ious
+
+    return float(view_ious(truth[None], (mask > 0.5)[None])[0])
 
 
 def summary(rows: list[dict], segmenters: list[str]) -> dict:

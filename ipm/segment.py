@@ -96,13 +96,14 @@ def mask_from_photo(rgb: np.ndarray, model=None) -> np.ndarray:
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] < 3 or min(rgb.shape[:2]) < 16:
         raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
-    prob = probability(rgb, model)
-    img8 = rgb[..., :3] if rgb.dtype == np.uint8 else np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8)
+    img8 = np.ascontiguousarray(rgb[..., :3] if rgb.dtype == np.uint8 else
+                                np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
+    prob = probability(img8, model)
     gc = np.select([prob < SURE, prob > 1 - SURE, prob > 0.5], [cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_FGD],
                    cv2.GC_PR_BGD).astype(np.uint8)
     if not (gc == cv2.GC_FGD).any() and not (gc == cv2.GC_PR_FGD).any():
         raise UserError("the segmenter finds no object in the photo: give a mask")
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(0)
-    cv2.grabCut(np.ascontiguousarray(img8), gc, None, bgd, fgd, 5, cv2.GC_INIT_WITH_MASK)
+    cv2.grabCut(img8, gc, None, bgd, fgd, 5, cv2.GC_INIT_WITH_MASK)
     return _cleaned((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD))

@@ -153,7 +153,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     from ipm.io.semantic import save_labels
     from ipm.render.semantic import render_labels, render_tree_rgb
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.render.textured import procedural_texture, render_rgb
+    from ipm.render.textured import render_rgb
 
     if n_views < 1 or res < 16:
         raise UserError("need at least 1 view and 16 px")
@@ -176,11 +176,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             rgb = render_tree_rgb(v, f, labels, c2w, fov, res, res, spp, spec.get("texture_seed", 0))
             masks = (semantic > 0).astype(np.float32)
         elif layout == "photo":
-            from ipm.render.photo_scene import render_photo
-
-            shot = photo_setting(case)
-            rgb = render_photo(v, f, uv, c2w, fov, res, res, shot["backdrop"], shot["seed"],
-                               procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)
+            rgb = photographs(case, spec, v, f, uv, c2w, fov, res, spp)
             masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
         else:
             rgb = render_rgb(v, f, uv, c2w, fov, res, res, spec.get("texture_seed", 0), spp)
@@ -197,6 +193,18 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
                 frames[-1]["semantic_path"] = f"semantic/{i:03d}.png"
         write_views(tmp / "transforms.json", fov, res, res, frames, scheme[0] if scheme else None)
         _write_reference(tmp, spec, v, f, labels)
+
+
+def photographs(case: str, spec: dict, v, f, uv, c2w: np.ndarray, fov: float, res: int, spp: int,
+                backdrop: str | None = None) -> np.ndarray:
+    """Linear RGB photographs (n, res, res, 3) of a case's mesh from ``c2w`` with its
+    :func:`photo_setting` (``backdrop`` in place of the setting's where given)."""
+    from ipm.render.photo_scene import render_photo
+    from ipm.render.textured import procedural_texture
+
+    shot = photo_setting(case)
+    return render_photo(v, f, uv, c2w, fov, res, res, backdrop or shot["backdrop"], shot["seed"],
+                        procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)
 
 
 def _write_reference(folder: Path, spec: dict, v, f, labels) -> None:

@@ -298,6 +298,15 @@ def srgb_bytes(rgb: np.ndarray) -> np.ndarray:
     return (srgb * 255 + 0.5).astype(np.uint8)
 
 
+def jpeg_roundtrip(rgb8: np.ndarray, quality: int) -> np.ndarray:
+    """An 8-bit RGB image as it reads back after JPEG compression at ``quality``."""
+    import io
+
+    buf = io.BytesIO()
+    Image.fromarray(rgb8).save(buf, format="JPEG", quality=int(quality))
+    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"))
+
+
 def save_rgb(path: str | os.PathLike, rgb: np.ndarray, quality: int | None = None) -> None:
     """Write a linear float RGB image in [0, 1] as an sRGB 8-bit PNG (a JPEG of ``quality``
     where one is given), atomically."""

@@ -84,15 +84,13 @@ def load(path: str | None = None) -> UNet:
     return model
 
 
-def probability(rgb: np.ndarray, model: UNet | None = None) -> np.ndarray:
-    """The object probability (H, W) of a photo (H, W, 3; uint8 or float in [0, 1]), read at
-    :data:`SEG_RES` and resized back."""
+def probability(img8: np.ndarray, model: UNet | None = None) -> np.ndarray:
+    """The object probability (H, W) of an 8-bit RGB photo (H, W, 3), read at :data:`SEG_RES`
+    and resized back."""
     from PIL import Image
 
-    rgb = np.asarray(rgb)[..., :3]
-    img8 = rgb if rgb.dtype == np.uint8 else np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8)
     small = np.array(Image.fromarray(img8).resize((SEG_RES, SEG_RES), Image.BILINEAR))
     prob = probabilities(model or load(), small[None])[0]
-    return np.array(Image.fromarray(prob.astype(np.float32)).resize((rgb.shape[1], rgb.shape[0]), Image.BILINEAR))
+    return np.array(Image.fromarray(prob.astype(np.float32)).resize((img8.shape[1], img8.shape[0]), Image.BILINEAR))
 
 

@@ -10,7 +10,6 @@ seed 0, one thread).
 """
 from __future__ import annotations
 
-import io
 import time
 from dataclasses import asdict, dataclass
 from typing import Annotated
@@ -50,9 +49,7 @@ PROFILES = {"smoke": SegmenterSettings(samples=8, held_out=4, steps=4, batch=4, 
 
 def photo_sample(gen, rng: np.random.Generator, res: int = SEG_RES, spp: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """One training photo (res, res, 3) uint8 and its object mask (res, res) bool."""
-    from PIL import Image
-
-    from ipm.io.views import srgb_bytes
+    from ipm.io.views import jpeg_roundtrip, srgb_bytes
     from ipm.learned.data import PHOTO_ELEVATIONS, draw_sample, sample_lod
     from ipm.render.photo_scene import render_photo
     from ipm.render.textured import procedural_texture
@@ -64,9 +61,7 @@ def photo_sample(gen, rng: np.random.Generator, res: int = SEG_RES, spp: int = 1
     plain = None if textured else tuple(rng.uniform(0.03, 0.9, 3))
     linear = render_photo(sample.vertices, sample.faces, mesh_uv, sample.c2w[None], sample.fov_x, res, res,
                           "random", int(rng.integers(1 << 20)), texture, plain, spp)[0]
-    buf = io.BytesIO()
-    Image.fromarray(srgb_bytes(linear)).save(buf, format="JPEG", quality=int(rng.integers(60, 96)))
-    return np.array(Image.open(io.BytesIO(buf.getvalue())).convert("RGB")), sample.mask > 0.5
+    return jpeg_roundtrip(srgb_bytes(linear), int(rng.integers(60, 96))), sample.mask > 0.5
 
 
 def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False) -> dict:
@@ -84,12 +79,6 @@ def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False) -> dic
         images.append(image)
         masks.append(mask)
     return {"image": np.stack(images), "mask": np.stack(masks)}
-
-
-def mask_iou(prob: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per photo, the IoU of ``prob > 0.5`` with the true masks."""
-    pred = prob > 0.5
-    return (pred & mask).sum((1, 2)) / np.maximum((pred | mask).sum((1, 2)), 1)
 
 
 def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None):
@@ -128,7 +117,9 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
         losses.append(float(loss))
         if len(losses) % 100 == 0:
             bar.set_postfix(loss=f"{np.mean(losses[-100:]):.4f}")
-    held = mask_iou(probabilities(model, data["image"][n:]), data["mask"][n:]) if settings.held_out else None
+    from ipm.metrics.silhouette import view_ious
+
+    held = view_ious(data["mask"][n:], probabilities(model, data["image"][n:]) > 0.5) if settings.held_out else None
     meta = {"seed": seed, "settings": asdict(settings), "res": SEG_RES, "widths": list(WIDTHS),
             "generators": list(GENERATORS), "final_loss": float(np.mean(losses[-50:])),
             "held_out_mask_iou": None if held is None else {"mean": float(held.mean()), "worst": float(held.min())},
@@ -148,8 +139,8 @@ def prepare(out, profile: str = "default", seed: int = 0, progress: bool = False
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m ipm.learned.segmenter [OUT]``: train the shipped segmenter (default budget, seed 0,
-    one thread)."""
+    """``python -m ipm.learned.segmenter_training [OUT]``: train the shipped segmenter (default
+    budget, seed 0, one thread)."""
     import sys
 
     from ipm.runtime import configure_threads, set_mitsuba_variant

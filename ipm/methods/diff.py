@@ -130,51 +130,53 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
 
 def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
               seed: int = 0, progress: bool = True, n_input_views: int | None = 1, fov_given: bool = False,
-              prepared=None, **overrides) -> dict:
+              prepared=None, segment_image: bool = False, **overrides) -> dict:
     """The benchmark's camera-withheld row: the first view's mask alone, without its camera or field
     of view (with ``fov_given``, with its field of view), goes to the diff path (``ipm.photo``);
     only afterwards, to score it, the result is placed in the views' world by taking the estimated
     camera to the given one's position and heading, keeping the ground and the vertical
-    (:func:`ipm.photo.registration`), and the camera's errors are recorded in params.json."""
+    (:func:`ipm.photo.registration`), and the camera's errors are recorded in params.json. With
+    ``segment_image``, the mask the fit sees is the first image segmented (:func:`segmented`)."""
     from ipm.photo import scored_placement, withheld
 
     t0 = time.perf_counter()
     given = open_views(views_path).first(1)
-    problem, z, trace, prof = fit(withheld(given, fov_given), generator, profile, seed, progress, prepared,
+    seen, extra = segmented(given) if segment_image else (given, {})
+    problem, z, trace, prof = fit(withheld(seen, fov_given), generator, profile, seed, progress, prepared,
                                   **overrides)
     place, placed = scored_placement(problem, z, given)
-    info = {"method": "photo_fov" if fov_given else "photo", "profile": profile, "seed": seed, **placed}
+    method = "photo_image" if segment_image else "photo_fov" if fov_given else "photo"
+    info = {"method": method, "profile": profile, "seed": seed, **placed, **extra}
     return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
+
+
+def segmented(given: Views) -> tuple[Views, dict]:
+    """``given`` (one view) with its mask replaced by its image segmented
+    (``ipm.segment.mask_from_photo``), and what params.json records of it: the segmentation's IoU
+    with the mask it replaced (``segmentation.mask_iou``), which the fit never sees."""
+    from PIL import Image
+
+    from ipm.errors import UserError
+    from ipm.metrics.silhouette import view_ious
+    from ipm.segment import mask_from_photo
+
+    path = given.root / given.frames[0]["file_path"]
+    with Image.open(path) as img:
+        rgb = np.asarray(img.convert("RGB"))
+    if rgb.shape[:2] != given.masks[0].shape:
+        raise UserError(f"{path} is {rgb.shape[1]}x{rgb.shape[0]} px, its views {given.width}x{given.height}")
+    mask = mask_from_photo(rgb)
+    mask_iou = float(view_ious(given.masks[:1] > 0.5, mask[None] > 0.5)[0])
+    return replace(given, masks=mask[None]), {"segmentation": {"mask_iou": round(mask_iou, 4)}}
 
 
 def run_photo_image(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",
                     seed: int = 0, progress: bool = True, n_input_views: int | None = 1, prepared=None,
                     **overrides) -> dict:
-    """The camera-withheld row from the photo alone: the first view's image segmented
-    (``ipm.segment.mask_from_photo``) in place of its mask, which only scores the segmentation
-    (``segmentation`` in params.json: the mask's IoU with the true one); then as :func:`run_photo`."""
-    from PIL import Image
-
-    from ipm.errors import UserError
-    from ipm.photo import scored_placement, withheld
-    from ipm.segment import mask_from_photo
-
-    t0 = time.perf_counter()
-    given = open_views(views_path).first(1)
-    with Image.open(given.root / given.frames[0]["file_path"]) as img:
-        rgb = np.asarray(img.convert("RGB"))
-    if rgb.shape[:2] != given.masks[0].shape:
-        raise UserError(f"{views_path}: the first image is {rgb.shape[1]}x{rgb.shape[0]} px, its views "
-                        f"{given.width}x{given.height}")
-    mask = mask_from_photo(rgb)
-    truth = given.masks[0] > 0.5
-    mask_iou = float((truth & (mask > 0.5)).sum() / max((truth | (mask > 0.5)).sum(), 1))
-    problem, z, trace, prof = fit(withheld(replace(given, masks=mask[None]), False), generator, profile, seed,
-                                  progress, prepared, **overrides)
-    place, placed = scored_placement(problem, z, given)
-    info = {"method": "photo_image", "profile": profile, "seed": seed, **placed,
-            "segmentation": {"mask_iou": round(mask_iou, 4)}}
-    return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, place=place)
+    """The camera-withheld row from the photo alone: the first view's image segmented in place of its
+    mask, which only scores the segmentation (:func:`run_photo`, ``segment_image``)."""
+    return run_photo(views_path, out, generator, profile, seed, progress, n_input_views, prepared=prepared,
+                     segment_image=True, **overrides)
 
 
 def run_photo_fov(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",

@@ -4,8 +4,9 @@ and sunlight, casting its shadow there, in front of one of :data:`BACKDROPS`.
 The scene: a sky (an equirectangular gradient, zenith blue to a pale horizon) and a sun (a
 directional light from a seeded direction 35-65 degrees high) light the object, which carries its
 case's texture or a plain colour; the ground is a large plane at the object's lowest point, with
-the backdrop's material; ``table`` adds a wall behind the object. Path traced with three bounces,
-so the object's contact shadow and its shading are in the image; the caller writes it as JPEG.
+the backdrop's material; ``table`` adds a wall behind the object. Path traced (paths of up to four
+segments), so the object's contact shadow and its shading are in the image; the caller writes it
+as JPEG.
 """
 from __future__ import annotations
 
