@@ -25,9 +25,9 @@ DEV = ["cup_1", "cup_2", "cup_d1", "cup_d2", "cup_d3", "cup_d4", "cup_bowl", "cu
 
 
 def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
-    """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask."""
+    """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask
+    (both as its lens draws them)."""
     from ipm.io.views import jpeg_roundtrip, srgb_bytes
-    from ipm.render.silhouette import SilhouetteRenderer
     from ipm.synth import PHOTO_QUALITY, case_fov, ground_truth_mesh, load_case, photographs, view_cameras
 
     spec = load_case(case)
@@ -36,9 +36,8 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     cam, fov = spec.get("camera", {}), case_fov(spec)
     c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
                        cam.get("elevation_deg", 22.0), "photo", fov)
-    linear = photographs(case, spec, v, f, uv, c2w, fov, res, spp, backdrop)[0]
-    truth = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)[0] > 0.5
-    return jpeg_roundtrip(srgb_bytes(linear), PHOTO_QUALITY), truth
+    linear, masks, _ = photographs(case, spec, v, f, uv, c2w, fov, res, spp, backdrop)
+    return jpeg_roundtrip(srgb_bytes(linear[0]), PHOTO_QUALITY), masks[0] > 0.5
 
 
 def score(mask: np.ndarray, truth: np.ndarray) -> float:

@@ -110,17 +110,26 @@ PHOTO_QUALITY = 88
 """JPEG quality of the ``photo`` layout's images."""
 
 
+PHOTO_K1 = (-0.3, -0.1)
+"""Range of the radial distortion coefficient ``k1`` (OpenCV's model, normalised image
+coordinates) of the ``photo`` layout's distorted cases: a barrel distortion at the strong end of
+what lenses leave at the suite's 40-degree field of view (a 256 px frame's corners move by up to
+12 px, the object's edge, nearer the centre, by about half a pixel)."""
+
+
 def photo_setting(case: str) -> dict:
     """How a case is photographed in the ``photo`` layout, fixed by its name: the backdrop
     (``ipm.render.photo_scene.BACKDROPS``), the scene's seed (the sun's direction, the ground's
-    pattern) and, for half the cases, a plain colour in place of the case's texture."""
+    pattern), for half the cases a plain colour in place of the case's texture, and for a third a
+    radial lens distortion ``k1`` (:data:`PHOTO_K1`; 0 for a pinhole)."""
     from ipm.render.photo_scene import BACKDROPS
 
     key = zlib.crc32(case.encode())
     rng = np.random.default_rng(key)
     plain = rng.uniform(0.05, 0.85, 3).round(3).tolist()
+    k1 = round(float(rng.uniform(*PHOTO_K1)), 4)
     return {"backdrop": BACKDROPS[key % len(BACKDROPS)], "seed": key % 100_003,
-            "plain": plain if (key >> 3) % 2 else None}
+            "plain": plain if (key >> 3) % 2 else None, "k1": k1 if (key >> 5) % 3 == 0 else 0.0}
 
 
 def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float, elevation: float,
@@ -176,8 +185,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             rgb = render_tree_rgb(v, f, labels, c2w, fov, res, res, spp, spec.get("texture_seed", 0))
             masks = (semantic > 0).astype(np.float32)
         elif layout == "photo":
-            rgb = photographs(case, spec, v, f, uv, c2w, fov, res, spp)
-            masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
+            rgb, masks, lens = photographs(case, spec, v, f, uv, c2w, fov, res, spp)
         else:
             rgb = render_rgb(v, f, uv, c2w, fov, res, res, spec.get("texture_seed", 0), spp)
             masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
@@ -191,20 +199,34 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             if scheme:
                 save_labels(tmp / "semantic" / f"{i:03d}.png", semantic[i], top)
                 frames[-1]["semantic_path"] = f"semantic/{i:03d}.png"
-        write_views(tmp / "transforms.json", fov, res, res, frames, scheme[0] if scheme else None)
+        write_views(tmp / "transforms.json", fov, res, res, frames, scheme[0] if scheme else None,
+                    lens if layout == "photo" else None)
         _write_reference(tmp, spec, v, f, labels)
 
 
 def photographs(case: str, spec: dict, v, f, uv, c2w: np.ndarray, fov: float, res: int, spp: int,
-                backdrop: str | None = None) -> np.ndarray:
-    """Linear RGB photographs (n, res, res, 3) of a case's mesh from ``c2w`` with its
-    :func:`photo_setting` (``backdrop`` in place of the setting's where given)."""
+                backdrop: str | None = None):
+    """A case's photographs from ``c2w`` with its :func:`photo_setting` (``backdrop`` in place of
+    the setting's where given): linear RGB (n, res, res, 3), the true masks (n, res, res) and the
+    lens (``ipm.io.lens.Lens``; None for a pinhole). Through a lens both are drawn by its pinhole
+    twin on a canvas wide enough for all the lens sees, then distorted as the lens draws them."""
+    from ipm.io.lens import nerfstudio_lens
     from ipm.render.photo_scene import render_photo
+    from ipm.render.silhouette import SilhouetteRenderer
     from ipm.render.textured import procedural_texture
 
     shot = photo_setting(case)
-    return render_photo(v, f, uv, c2w, fov, res, res, backdrop or shot["backdrop"], shot["seed"],
-                        procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)
+    focal = 0.5 * res / np.tan(0.5 * fov)
+    lens = nerfstudio_lens("OPENCV", focal, focal, 0.5 * res, 0.5 * res, {"k1": shot["k1"]}, res, res)
+    margin = lens.twin_margin() if lens is not None else 0
+    size = res + 2 * margin
+    canvas_fov = 2.0 * float(np.arctan(0.5 * size / focal))
+    rgb = render_photo(v, f, uv, c2w, canvas_fov, size, size, backdrop or shot["backdrop"], shot["seed"],
+                       procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)
+    masks = SilhouetteRenderer(c2w, canvas_fov, size, size, spp=16).render(v, f)
+    if lens is None:
+        return rgb, masks, None
+    return lens.from_twin(rgb, margin), lens.from_twin(masks, margin), lens
 
 
 def _write_reference(folder: Path, spec: dict, v, f, labels) -> None:

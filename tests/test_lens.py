@@ -135,10 +135,12 @@ def _shifted_capture(tmp_path):
     return load_views(tmp_path / "transforms.json"), rgb, mask
 
 
-def test_images_read_later_go_through_the_lens_like_the_masks(tmp_path):
-    """The GA's labels from the photo's colours and the COLMAP baseline's images are taken
-    through the same lens as the masks, so they stay on the object."""
+def test_images_read_later_go_through_the_lens_like_the_masks(tmp_path, monkeypatch):
+    """The GA's labels from the photo's colours, the COLMAP baseline's images and the photo the
+    image-only row segments are taken through the same lens as the masks, so they stay on the object."""
+    import ipm.segment
     from baselines.colmap.pipeline import make_workspace
+    from ipm.methods.diff import segmented
     from ipm.methods.ga import reference_labels
 
     views, rgb, mask = _shifted_capture(tmp_path)
@@ -150,3 +152,30 @@ def test_images_read_later_go_through_the_lens_like_the_masks(tmp_path):
     ws = make_workspace(views, tmp_path / "colmap")
     seen = np.asarray(Image.open(ws.images / ws.names[0]).convert("RGB"))
     np.testing.assert_array_equal(seen[:, :-3], rgb[:, 3:])
+    # a segmenter that keeps what is neither the grey ground nor past the frame: its mask lands on the mask read
+    monkeypatch.setattr(ipm.segment, "mask_from_photo", lambda img: ((img != 128).any(-1) & img.any(-1)).astype(np.float32))
+    cut, record = segmented(views)
+    np.testing.assert_array_equal(cut.masks[0] > 0.5, views.masks[0] > 0.5)
+    assert record["segmentation"]["mask_iou"] == 1.0
+
+
+def test_a_twin_drawn_with_a_margin_is_distorted_as_the_capture_sees_it():
+    """The inverse of reading a capture (synthesising a distorted one): discs drawn by the pinhole
+    twin on a canvas grown by the lens's margin land where the capture's lens puts their rays, and
+    the margin holds every ray the capture sees."""
+    lens = nerfstudio_lens("OPENCV", CAMERA["fl_x"], CAMERA["fl_y"], CAMERA["cx"], CAMERA["cy"], CAMERA, W, H)
+    m, f = lens.twin_margin(), CAMERA["fl_x"]
+    u, v = np.meshgrid(np.arange(W + 2 * m) + 0.5, np.arange(H + 2 * m) + 0.5)
+    twin = np.zeros((1, H + 2 * m, W + 2 * m), np.float32)
+    for x, y in DIRECTIONS:
+        twin[0][(u - (f * x + W / 2 + m)) ** 2 + (v - (f * y + H / 2 + m)) ** 2 <= 2.5 ** 2] = 1.0
+    seen = lens.from_twin(twin, m)[0]
+    expected = [_opencv_pixel(x, y, CAMERA) for x, y in DIRECTIONS]
+    # (a disc near the frame's edge is squeezed by the barrel: its centroid lies up to 0.4 px off
+    # its centre's image, against several pixels for a sign or convention error)
+    np.testing.assert_allclose(_centroids(seen, expected), expected, atol=0.5)
+    x, y = lens._twin_pixels_of_capture(m)
+    assert x.min() >= 0 and y.min() >= 0 and x.max() <= W + 2 * m - 1 and y.max() <= H + 2 * m - 1
+    assert lens._twin_pixels_of_capture(0)[0].min() < -1  # without the margin the corners fall off
+    with pytest.raises(UserError, match="with its margin"):
+        lens.from_twin(twin[:, 1:], m)

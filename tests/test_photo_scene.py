@@ -80,6 +80,26 @@ def test_the_photo_layout_writes_jpegs_and_true_masks(photo_case):
     assert photo_setting("cup_1") == photo_setting("cup_1") and photo_setting("cup_1")["backdrop"]
 
 
+def test_a_distorted_photo_case_writes_its_lens_and_reads_back_as_its_pinhole_twin(photo_case, mitsuba_cpu):
+    """cup_1 is photographed through a barrel lens: transforms.json gives its k1 (the lens read back),
+    and its masks read back match the pinhole render of the true mesh. (Where the lens draws what,
+    in pixels: ``tests/test_lens.py``; at 96 px the object's edge moves by under half a pixel.)"""
+    from ipm.io.views import load_views
+    from ipm.metrics.silhouette import view_ious
+    from ipm.render.silhouette import SilhouetteRenderer
+    from ipm.synth import PHOTO_K1, ground_truth_mesh, load_case, photo_setting
+
+    k1 = photo_setting("cup_1")["k1"]
+    assert PHOTO_K1[0] <= k1 <= PHOTO_K1[1]
+    meta = json.loads((photo_case / "transforms.json").read_text())
+    assert meta["camera_model"] == "OPENCV" and meta["k1"] == k1
+    views = load_views(photo_case / "transforms.json")
+    assert views.lens is not None
+    v, f, _, _ = ground_truth_mesh(load_case("cup_1"))
+    pinhole = SilhouetteRenderer(views.c2w, views.fov_x, 96, 96, spp=16).render(v, f) > 0.5
+    assert view_ious(pinhole, views.masks > 0.5)[0] > 0.97
+
+
 def test_the_photo_layout_refuses_trees(tmp_path, mitsuba_cpu):
     from ipm.synth import synthesize
 

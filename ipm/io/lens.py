@@ -74,24 +74,59 @@ class Lens:
         if images.shape[1:3] != (self.height, self.width):
             raise UserError(f"images are {images.shape[2]}x{images.shape[1]} px, the camera {self.width}x{self.height}")
         src = self.source_pixels()
-        x, y = src[..., 0], src[..., 1]
-        if nearest:
-            c, r = np.rint(x).astype(np.int64), np.rint(y).astype(np.int64)
-            inside = (c >= 0) & (c < self.width) & (r >= 0) & (r < self.height)
-            out = images[:, np.clip(r, 0, self.height - 1), np.clip(c, 0, self.width - 1)]
-            return np.where(_expand(inside, out), out, 0).astype(images.dtype)
-        c0, r0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-        fx, fy = x - c0, y - r0
-        total = 0.0
-        for dc, dr, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-            c, r = c0 + dc, r0 + dr
-            inside = (c >= 0) & (c < self.width) & (r >= 0) & (r < self.height)
-            tap = images[:, np.clip(r, 0, self.height - 1), np.clip(c, 0, self.width - 1)].astype(np.float64)
-            total = total + _expand(np.where(inside, w, 0.0), tap) * tap
-        if np.issubdtype(images.dtype, np.integer):
-            info = np.iinfo(images.dtype)
-            return np.clip(np.rint(total), info.min, info.max).astype(images.dtype)
-        return total.astype(images.dtype)
+        return _sample(images, src[..., 0], src[..., 1], nearest)
+
+    def twin_margin(self) -> int:
+        """Pixels the pinhole twin's canvas must grow by on every side to hold all that the capture
+        sees (a barrel lens sees past the twin's frame): for :meth:`from_twin`."""
+        x, y = self._twin_pixels_of_capture(0)
+        over = max(-x.min(), -y.min(), x.max() - (self.width - 1), y.max() - (self.height - 1), 0.0)
+        return int(np.ceil(over)) + 2
+
+    def from_twin(self, images: np.ndarray, margin: int, nearest: bool = False) -> np.ndarray:
+        """The inverse of :meth:`resample`: ``images`` (n, height + 2 margin, width + 2 margin[,
+        channels]) drawn by the pinhole twin on a canvas ``margin`` pixels wider on every side (the
+        same focal length), as the capture's camera sees them. For synthesising distorted captures."""
+        images = np.asarray(images)
+        if images.shape[1:3] != (self.height + 2 * margin, self.width + 2 * margin):
+            raise UserError(f"twin images are {images.shape[2]}x{images.shape[1]} px, the camera with its margin "
+                            f"{self.width + 2 * margin}x{self.height + 2 * margin}")
+        x, y = self._twin_pixels_of_capture(margin)
+        return _sample(images, x, y, nearest)
+
+    def _twin_pixels_of_capture(self, margin: int) -> tuple[np.ndarray, np.ndarray]:
+        """Where each capture pixel's ray meets the twin's canvas (``margin`` px wider on every
+        side), in its array coordinates (column, row)."""
+        cols, rows = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        rays = np.asarray(self.camera().cam_from_img(np.stack([cols.ravel(), rows.ravel()], -1)), np.float64)
+        f = self.focal
+        x = f * rays[:, 0] + 0.5 * self.width + margin - 0.5
+        y = f * rays[:, 1] + 0.5 * self.height + margin - 0.5
+        return x.reshape(self.height, self.width), y.reshape(self.height, self.width)
+
+
+def _sample(images: np.ndarray, x: np.ndarray, y: np.ndarray, nearest: bool) -> np.ndarray:
+    """``images`` (n, h, w[, channels]) read at the array coordinates ``x`` (columns), ``y`` (rows)
+    of an output grid: bilinear (``nearest`` for labels), zero outside; the dtype kept (floats stay
+    floats; integers are rounded)."""
+    height, width = images.shape[1:3]
+    if nearest:
+        c, r = np.rint(x).astype(np.int64), np.rint(y).astype(np.int64)
+        inside = (c >= 0) & (c < width) & (r >= 0) & (r < height)
+        out = images[:, np.clip(r, 0, height - 1), np.clip(c, 0, width - 1)]
+        return np.where(_expand(inside, out), out, 0).astype(images.dtype)
+    c0, r0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - c0, y - r0
+    total = 0.0
+    for dc, dr, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        c, r = c0 + dc, r0 + dr
+        inside = (c >= 0) & (c < width) & (r >= 0) & (r < height)
+        tap = images[:, np.clip(r, 0, height - 1), np.clip(c, 0, width - 1)].astype(np.float64)
+        total = total + _expand(np.where(inside, w, 0.0), tap) * tap
+    if np.issubdtype(images.dtype, np.integer):
+        info = np.iinfo(images.dtype)
+        return np.clip(np.rint(total), info.min, info.max).astype(images.dtype)
+    return total.astype(images.dtype)
 
 
 @lru_cache(maxsize=1)

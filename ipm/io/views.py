@@ -316,13 +316,20 @@ def save_rgb(path: str | os.PathLike, rgb: np.ndarray, quality: int | None = Non
 
 
 def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,
-                frames: list[dict], semantic_labels: dict | None = None) -> None:
+                frames: list[dict], semantic_labels: dict | None = None, lens: Lens | None = None) -> None:
     """Write a transforms.json; ``frames`` hold paths and (4, 4) ``transform_matrix`` arrays.
     The camera in both focal forms: ``camera_angle_x`` (instant-ngp, NeRF-synthetic) and
-    ``fl_x``/``fl_y``/``cx``/``cy`` (nerfstudio's parser needs ``fl_x``)."""
+    ``fl_x``/``fl_y``/``cx``/``cy`` (nerfstudio's parser needs ``fl_x``); with ``lens`` (an
+    ``OPENCV`` one, centred, ``fov_x`` its pinhole twin's) its distortion as nerfstudio writes it."""
     focal = 0.5 * width / np.tan(0.5 * fov_x)
     data = {"camera_angle_x": float(fov_x), "w": int(width), "h": int(height), "fl_x": float(focal),
             "fl_y": float(focal), "cx": 0.5 * width, "cy": 0.5 * height, "camera_model": "PINHOLE"}
+    if lens is not None:
+        if lens.model != "OPENCV" or (lens.width, lens.height) != (width, height):
+            raise ValueError(f"write_views writes an OPENCV lens of the views' size, not {lens.model} "
+                             f"{lens.width}x{lens.height}")
+        fx, fy, cx, cy, k1, k2, p1, p2 = map(float, lens.params)
+        data.update(fl_x=fx, fl_y=fy, cx=cx, cy=cy, camera_model="OPENCV", k1=k1, k2=k2, p1=p1, p2=p2)
     if semantic_labels:
         data["semantic_labels"] = semantic_labels
     data["frames"] = [

@@ -165,6 +165,8 @@ def segmented(given: Views) -> tuple[Views, dict]:
         rgb = np.asarray(img.convert("RGB"))
     if rgb.shape[:2] != given.masks[0].shape:
         raise UserError(f"{path} is {rgb.shape[1]}x{rgb.shape[0]} px, its views {given.width}x{given.height}")
+    if given.lens is not None:  # the photo its pinhole twin sees, as the masks were read
+        rgb = given.lens.resample(rgb[None])[0]
     mask = mask_from_photo(rgb)
     mask_iou = float(view_ious(given.masks[:1] > 0.5, mask[None] > 0.5)[0])
     return replace(given, masks=mask[None]), {"segmentation": {"mask_iou": round(mask_iou, 4)}}
