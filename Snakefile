@@ -22,6 +22,7 @@ include: "pipelines/rules/report.smk"
 localrules:
     all,
     reference,
+    degrade_masks,
     reference_line,
     table,
     report,

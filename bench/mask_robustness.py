@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -25,20 +24,11 @@ import numpy as np
 
 
 def degraded_views(src: Path, dst: Path, name: str, seed: int) -> tuple[Path, float]:
-    """A copy of the views folder ``src`` whose first mask is degraded by ``name`` (seeded), and the
-    degraded mask's IoU with the true one."""
-    from PIL import Image
+    """A copy of the views folder ``src`` whose mask is degraded by ``name`` (seeded), and the
+    degraded mask's IoU with the true one (``ipm.degrade.degrade_views``)."""
+    from ipm.degrade import degrade_views
 
-    from ipm.degrade import degrade
-    from ipm.io.views import save_mask
-
-    shutil.copytree(src, dst)
-    frame = json.loads((dst / "transforms.json").read_text())["frames"][0]
-    path = dst / frame["mask_path"]
-    mask = np.asarray(Image.open(path).convert("L")) > 127
-    out = degrade(mask, name, np.random.default_rng(seed))
-    save_mask(path, out)
-    return dst, float((out & mask).sum() / (out | mask).sum())
+    return dst, degrade_views(src, dst, name, seed)[0]
 
 
 def fit_and_score(generator: str, views: Path, reference: Path, out: Path, seed: int) -> dict:

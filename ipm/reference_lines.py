@@ -11,11 +11,15 @@ from __future__ import annotations
 
 import time
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import trimesh
 
 from ipm.errors import UserError
 from ipm.registry import Registry
+
+if TYPE_CHECKING:  # trimesh is loaded where a line runs, not where the workflow reads the names
+    import trimesh
 
 REFERENCE_LINES: Registry = Registry("reference line")
 
@@ -41,6 +45,8 @@ def convex_hull(reference: trimesh.Trimesh, case: dict | None = None) -> trimesh
 @line("bounding_sphere", "bounding sphere (reference)")
 def bounding_sphere(reference: trimesh.Trimesh, case: dict | None = None) -> trimesh.Trimesh:
     """The sphere around the reference's bounding-box centre through its farthest vertex."""
+    import trimesh
+
     lo, hi = reference.bounds
     centre = (lo + hi) / 2
     radius = float(np.linalg.norm(reference.vertices - centre, axis=1).max())
@@ -58,6 +64,8 @@ def _reseedable(case: dict) -> bool:
 @line("reseeded_truth", "true parameters, other seed (reference)", applies=_reseedable)
 def reseeded_truth(reference: trimesh.Trimesh, case: dict | None = None) -> trimesh.Trimesh:
     """The case's true parameters and pose with the next value of the generator's ``seed``."""
+    import trimesh
+
     from ipm.generators import get_generator
     from ipm.synth import ground_truth_mesh
 
@@ -71,7 +79,6 @@ def reseeded_truth(reference: trimesh.Trimesh, case: dict | None = None) -> trim
     other = {**case, "source": {**src, "params": {**src.get("params", {}), "seed": (seed + 1) % (hi + 1)}}}
     v, f, _, _ = ground_truth_mesh(other)
     return trimesh.Trimesh(v, f, process=False)
-
 
 
 def write_reference_line(name: str, reference: str, out: str, truth: str | None = None) -> None:

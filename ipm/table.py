@@ -29,7 +29,7 @@ import pandas as pd
 from ipm.io.atomic import atomic_path
 from ipm.metrics.recovery import CAMERA_COLUMNS, RECOVERY_COLUMNS
 
-COLUMNS = ["row", "label", "kind", "case", "split", "generator", "family", "seed", "iou_mean", "iou_min", "iou_std",
+COLUMNS = ["row", "label", "kind", "mask", "case", "split", "generator", "family", "seed", "iou_mean", "iou_min", "iou_std",
            "iou_above", "iou_below", "shape_iou", "align_yaw_deg", "align_shift", "align_scale", "viou",
            "recon_watertight", "chamfer_l2", "chamfer_l1", "n_triangles", "malformed_share", *RECOVERY_COLUMNS,
            *CAMERA_COLUMNS, "seconds", "cpu_seconds", "machine", "note"]

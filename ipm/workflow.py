@@ -39,6 +39,15 @@ def synth_step(case: str, transforms: str, views: int, res: int, spp: int, layou
         synthesize(case, Path(transforms).parent, n_views=views, res=res, spp=spp, layout=layout)
 
 
+def degrade_step(src: str, dst: str, slug: str, seed: int, log=None):
+    """The views folder ``src`` with every mask degraded by the degradation called ``slug``
+    (``ipm.degrade``), at ``dst``: a mask row's input."""
+    with _logged(log, 1):
+        from ipm.degrade import by_slug, degrade_views
+
+        degrade_views(src, dst, by_slug(slug), seed)
+
+
 def reference_step(case: str, reference: str, gallery: str | None = None, log=None):
     """The case's reference mesh and truth, and its gallery sheet (the report's first row)."""
     with _logged(log, 1, mitsuba=gallery is not None):

@@ -246,6 +246,14 @@ def _recovery(summary: pd.DataFrame) -> dict | None:
     return None if rec.empty else _frame(rec[cols])
 
 
+def _masks(df: pd.DataFrame) -> dict | None:
+    """The mask rows against their true-mask twins (``reports.masks``), None without mask rows."""
+    from reports.masks import mask_errors
+
+    out = mask_errors(df)
+    return None if out is None else {**out, "table": _frame(out["table"])}
+
+
 def _benchmarks(paths: list[str]) -> pd.DataFrame:
     """Snakemake's benchmark TSVs of the reconstructions, one line each with row, case and seed
     from the path (``.../{row}/{case}/s{seed}.tsv``)."""
@@ -388,7 +396,7 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
         "siblings": [{"spec": t, **{s: metric_blocks(summary, df, t, s) for s in splits}}
                      for t in SIBLINGS if t.metric in summary],
         "paper": json.loads(PAPER_TABLE.read_text()), "bars": _fig(bars) if bars is not None else None,
-        "recovery": _recovery(summary), "timing": _timing(df, benchmarks or []), "cases": cases,
+        "recovery": _recovery(summary), "masks": _masks(df), "timing": _timing(df, benchmarks or []), "cases": cases,
         "runs": _frame(df.drop(columns=["row", "kind"]), "{:.4f}"), "provenance": _provenance(df, config),
         "model_viewer": MODEL_VIEWER.read_text().replace("</script", "<\\/script") if models and embedded else None,
         "models_off": None if models else f"3D views off: {MODEL_VIEWER.relative_to(HERE.parent)} is missing "

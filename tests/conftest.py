@@ -182,7 +182,8 @@ def pytest_runtest_logreport(report):
 def pytest_terminal_summary(terminalreporter):
     """The most memory mappings the process held at the end of a test module, against the limit."""
     try:
-        limit = open("/proc/sys/vm/max_map_count").read().strip()
+        with open("/proc/sys/vm/max_map_count") as f:
+            limit = f.read().strip()
     except OSError:
         return
     held, left, module = _session.get("peak", (0, 0, "none"))

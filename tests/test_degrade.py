@@ -55,3 +55,69 @@ def test_unknown_names_and_emptied_masks_are_errors():
         degrade(disk(20.0), "blur", np.random.default_rng(0))
     with pytest.raises(ValueError, match="empty mask"):
         degrade(disk(3.0), "edge -4 px", np.random.default_rng(0))
+
+
+def test_pixel_amounts_scale_with_the_image_width():
+    """'edge +2 px' is 2 px at 256 px wide: 1 px on a 128 px mask (the same share of the object)."""
+    small = disk(40.0, size=128, centre=(64.0, 64.0))
+    np.testing.assert_array_equal(degrade(small, "edge +2 px", np.random.default_rng(0)), shift_edge(small, 1))
+    np.testing.assert_array_equal(degrade(disk(40.0), "edge +2 px", np.random.default_rng(0)), shift_edge(disk(40.0), 2))
+
+
+def test_names_and_their_words_go_both_ways():
+    from ipm.degrade import by_slug, slug
+
+    words = [slug(name) for name in DEGRADATIONS]
+    assert len(set(words)) == len(words) and all(w.isalnum() and w.islower() for w in words)
+    assert slug("edge +2 px") == "edgep2px" and slug("edge -2 px") == "edgem2px"
+    assert [by_slug(w) for w in words] == list(DEGRADATIONS)
+    with pytest.raises(ValueError, match="no mask degradation is called 'blur'"):
+        by_slug("blur")
+
+
+def _views(folder, masks):
+    """A views folder with one mask per view (and no other images)."""
+    import json
+
+    from ipm.io.views import save_mask
+
+    frames = []
+    for i, m in enumerate(masks):
+        save_mask(folder / "masks" / f"{i:03d}.png", m)
+        frames.append({"file_path": f"masks/{i:03d}.png", "mask_path": f"masks/{i:03d}.png",
+                       "transform_matrix": np.eye(4).tolist()})
+    (folder / "transforms.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": frames}))
+    return folder
+
+
+def test_degraded_views_copy_the_folder_and_degrade_every_mask(tmp_path):
+    """Each view's mask is degraded with its own draw (view i from the seed and i), the true folder
+    is left as it was, and degradation.json records the name, the seed and each mask's IoU."""
+    import json
+
+    from PIL import Image
+
+    from ipm.degrade import degrade_views
+
+    src = _views(tmp_path / "src", [disk(50.0), disk(40.0, centre=(100.0, 140.0))])
+    ious = degrade_views(src, tmp_path / "out", "ragged 2 px", seed=3)
+    read = lambda p: np.asarray(Image.open(p)) > 127  # noqa: E731
+    for i, true in enumerate([disk(50.0), disk(40.0, centre=(100.0, 140.0))]):
+        np.testing.assert_array_equal(read(src / f"masks/{i:03d}.png"), true)
+        expected = degrade(true, "ragged 2 px", np.random.default_rng([3, i]))
+        np.testing.assert_array_equal(read(tmp_path / f"out/masks/{i:03d}.png"), expected)
+        assert ious[i] == pytest.approx((expected & true).sum() / (expected | true).sum(), abs=1e-4)
+    record = json.loads((tmp_path / "out/degradation.json").read_text())
+    assert record == {"degradation": "ragged 2 px", "seed": 3, "mask_iou": ious} and 0.8 < min(ious) < 1.0
+
+
+def test_a_degradation_that_fails_leaves_nothing_behind(tmp_path):
+    from ipm.degrade import degrade_views
+    from ipm.errors import UserError
+
+    src = _views(tmp_path / "src", [disk(50.0), disk(3.0)])
+    with pytest.raises(UserError, match="view 1: the degradation 'edge -4 px' leaves an empty mask"):
+        degrade_views(src, tmp_path / "out", "edge -4 px", seed=0)
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(UserError, match="no views to degrade"):
+        degrade_views(tmp_path / "missing", tmp_path / "out", "hole", seed=0)

@@ -191,6 +191,48 @@ def test_a_camera_withheld_row_leads_with_its_shape_iou_and_wins_by_it(report, t
     assert build.SIBLINGS[0].metric == "shape_iou" and shape_table[(photo, "cup_t1")]["main"] == f"{shape.mean():.3f}"
 
 
+def test_mask_rows_are_shown_against_their_true_mask_twins(report, tmp_path):
+    """Rows that read degraded masks get a section of their own: per class and degradation the IoU
+    lost against the same row on the true masks, paired by case and seed, and a plot of IoU against
+    the edge's shift; a run without mask rows has no such section."""
+    from reports.masks import mask_pairs, mask_plot, mask_table
+
+    assert "Mask errors" not in report["text"]
+    runs = [r for r in RUNS if r[0] == "diff_1v"]
+    degraded = {"edge +2 px": 0.03, "edge -2 px": 0.05, "hole": 0.0}  # IoU lost on every run
+    files = [_run(tmp_path, *r) for r in runs]
+    for name, loss in degraded.items():
+        row = f"diff_1v_mask{name.replace(' ', '').replace('+', 'p').replace('-', 'm')}"
+        for r in runs:
+            files.append(_run(tmp_path, row, f"{OURS} [mask: {name}]", "method", r[3], r[4], r[5] - loss))
+            info = Path(files[-1]).parent / "row.json"
+            info.write_text(json.dumps({**json.loads(info.read_text()), "mask": name}))
+    res = tmp_path / "results"
+    out = {k: str(res / f"{k}.csv") for k in ("table", "table_iou", "table_summary")}
+    build_table(files, out["table"], out["table_iou"], out["table_summary"])
+    table = pd.read_csv(out["table"])
+    pairs = mask_pairs(table)
+    assert len(pairs) == len(runs) * len(degraded) and set(pairs["label"]) == {OURS}
+    for name, loss in degraded.items():
+        part = pairs[pairs["mask"] == name]
+        np.testing.assert_allclose(part["shape_iou_loss"], loss, atol=1e-9)
+        np.testing.assert_allclose(part["iou_mean_loss"], loss, atol=1e-9)
+    summary = mask_table(pairs).set_index("degradation")
+    assert summary.loc["edge -2 px", "runs"] == len(runs)
+    assert summary.loc["edge -2 px", "shape IoU lost (mean)"] == pytest.approx(0.05)
+    fig = mask_plot(pairs)
+    [line, _] = fig.axes[0].get_lines()
+    assert list(line.get_xdata()) == [-2.0, 0.0, 2.0]  # the hole moves no edge: in the table, not the plot
+    true = np.mean([r[5] for r in runs])
+    np.testing.assert_allclose(line.get_ydata(), [true - 0.05, true, true - 0.03])
+    html = res / "report" / "index.html"
+    build.build_report(table_csv=out["table"], wide_csv=out["table_iou"], summary_csv=out["table_summary"],
+                       metrics=files, out_html=str(html), config={"cases": list(SPLIT)})
+    text = html.read_text()
+    assert "Mask errors: what a wrong mask costs" in text and 'href="#masks"' in text
+    assert f"{OURS} [mask: edge +2 px]" in text and "shape IoU lost (mean)" in text
+
+
 def test_pictures_missing_on_disk_say_so(report, tmp_path):
     res = tmp_path / "results"
     shutil.copytree(report["root"] / "results", res)

@@ -102,6 +102,24 @@ def test_other_seeds_of_a_compiling_method_wait_for_the_first(tmp_path):
     assert METHODS["diff"].compiles and not METHODS["ga"].compiles
 
 
+def test_a_mask_row_reads_its_views_with_degraded_masks(tmp_path):
+    """A methods entry with a ``mask`` reads a copy of its views whose masks a ``degrade_masks``
+    job degraded, under its own row id; an unknown degradation is refused when the DAG is built."""
+    rc, out = dry_run(tmp_path, "profile: smoke\ncases: [cup_1]\nmask_seed: 4\nmethods: [{name: diff, views: 1}, "
+                                "{name: diff, views: 1, mask: 'edge +2 px'}]\n")
+    assert rc == 0, out[-3000:]
+    job = out[out.index("rule degrade_masks:"):]
+    assert "input: results/synth/cup_1/hemi1\n" in job and "output: results/synth/cup_1/hemi1_maskedgep2px" in job
+    runs = {}
+    for block in out.split("rule reconstruct:\n")[1:]:
+        fields = dict(line.strip().split(": ", 1) for line in block.splitlines()[:2])
+        runs[fields["output"]] = fields["input"]
+    assert runs["results/reconstruct/diff_1v_maskedgep2px/cup_1/s0"].startswith("results/synth/cup_1/hemi1_maskedgep2px")
+    assert runs["results/reconstruct/diff_1v/cup_1/s0"].startswith("results/synth/cup_1/hemi1,")
+    rc, out = dry_run(tmp_path, "profile: smoke\ncases: [cup_1]\nmethods: [{name: diff, views: 1, mask: blur}]\n")
+    assert rc != 0 and "unknown mask degradation 'blur'" in out
+
+
 def test_the_default_config_reads_the_shipped_preparations(tmp_path):
     """The default run trains nothing: its learned rows, the diff path's learned start and the GA
     read the files the package ships (the same weights on every machine; the other configs make
@@ -215,15 +233,19 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     table = pd.read_csv(tmp_path / "results/table.csv")
     cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet", "building_1"}
     assert set(table["case"]) == cases
-    assert set(table["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "diffSDF-style (2 views)",
+    masked = "ours (diff, 1 view) [mask: edge +2 px]"
+    assert set(table["label"]) == {"ours (diff, 1 view)", masked, "ours (GA, 1 view)", "diffSDF-style (2 views)",
                                    "learned regressor (1 view)",
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
                                    "convex hull (reference)", "bounding sphere (reference)",
                                    "true parameters, other seed (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    # diff: 3 cases x 2 seeds; the learned row, GA, COLMAP, diffSDF: their cases; the reseeded truth:
-    # the one stochastic in-family case (tree_1); the rest: every case, once
-    assert len(table) == 6 + 1 + 2 + 1 + 2 + 1 + 3 * len(cases)
+    # diff: 3 cases x 2 seeds, on a degraded mask 1; the learned row, GA, COLMAP, diffSDF: their cases;
+    # the reseeded truth: the one stochastic in-family case (tree_1); the rest: every case, once
+    assert len(table) == 6 + 1 + 1 + 2 + 1 + 2 + 1 + 3 * len(cases)
+    assert table.loc[table["label"] == masked, "mask"].tolist() == ["edge +2 px"]
+    degraded = json.loads((store / "results/synth/cup_1/hemi1_maskedgep2px/degradation.json").read_text())
+    assert degraded["degradation"] == "edge +2 px" and 0.5 < degraded["mask_iou"][0] < 1.0
     assert set(table.loc[table["label"] == "diffSDF-style (2 views)", "case"]) == {"cup_1", "building_1"}
     assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]
@@ -240,7 +262,8 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert table.loc[failed, "iou_mean"].isna().all()
     # parameter recovery: in-family cases of the generator the row fits, nowhere else
     has_rec = ok["param_err"].notna()
-    assert set(ok.loc[has_rec, "label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)", "learned regressor (1 view)"}
+    assert set(ok.loc[has_rec, "label"]) == {"ours (diff, 1 view)", masked, "ours (GA, 1 view)",
+                                             "learned regressor (1 view)"}
     assert (ok.loc[has_rec, "family"] == "in").all() and ok.loc[has_rec, "discrete_match"].between(0, 1).all()
     hull = table[table["label"] == "convex hull (reference)"]["iou_mean"]
     sphere = table[table["label"] == "bounding sphere (reference)"]["iou_mean"]
@@ -256,7 +279,7 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert md.index("cups, test split") < md.index("cups, dev split")  # Table 1 is the test split
     html = (tmp_path / "results/report/index.html").read_text()
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
-    assert "test split" in html and "Parameter recovery" in html
+    assert "test split" in html and "Parameter recovery" in html and "Mask errors" in html
     assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/parts.png").is_file()
     assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/gallery.png").is_file()
     assert (tmp_path / "results/synth/cup_1/gallery.png").is_file()

@@ -8,14 +8,20 @@ validate(config, schema="../schemas/config.schema.yaml", set_default=True)
 from ipm.methods import METHODS, row_label
 from ipm.reference_lines import REFERENCE_LINES
 
-METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v(_[a-z0-9]+)?"
-"""Row ids of methods: the registered name, the number of views and the entry's tag if any,
-e.g. visual_hull_12v, ga_1v_labels."""
+METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v(_[a-z0-9]+)?(_mask[a-z0-9]+)?"
+"""Row ids of methods: the registered name, the number of views, the entry's tag if any and its
+mask degradation if any, e.g. visual_hull_12v, ga_1v_labels, diff_1v_maskedgep2px."""
 
 
 def row_id(m):
     """The row id of a methods entry (``METHOD_ROW``)."""
-    return f"{m['name']}_{m['views']}v" + (f"_{m['tag']}" if m.get("tag") else "")
+    from ipm.degrade import slug
+
+    return (
+        f"{m['name']}_{m['views']}v"
+        + (f"_{m['tag']}" if m.get("tag") else "")
+        + (f"_mask{slug(m['mask'])}" if m.get("mask") else "")
+    )
 
 
 wildcard_constraints:
@@ -27,6 +33,7 @@ wildcard_constraints:
     generator="[a-z0-9_]+",
     layout="hemi|ring|photo",
     n="[0-9]+",
+    mask="[a-z0-9]+",
 
 
 def method_cases(m):
@@ -75,6 +82,14 @@ def check_methods():
     for m in config["methods"]:
         if m["name"] not in METHODS:
             raise ValueError(f"config: unknown method {m['name']!r} (known: {', '.join(METHODS.names())})")
+        if m.get("mask") is not None:
+            from ipm.degrade import DEGRADATIONS
+
+            if m["mask"] not in DEGRADATIONS or m["mask"] == "none":
+                raise ValueError(
+                    f"config: methods entry {m['name']}: unknown mask degradation {m['mask']!r} "
+                    f"(known: {', '.join(d for d in DEGRADATIONS if d != 'none')})"
+                )
         for case in m.get("cases", []):
             load_case(case)  # an unknown name is refused even where cases leaves it out
         for case in method_cases(m):
@@ -125,18 +140,22 @@ def row_info(wildcards):
     m = method_of(wildcards)
     kind = "method" if METHODS[m["name"]].uses_generator else "baseline"
     tag = f" [{m['tag']}]" if m.get("tag") else ""
-    return {"label": row_label(m["name"], m["views"]) + tag, "kind": kind}
+    mask = f" [mask: {m['mask']}]" if m.get("mask") else ""
+    return {"label": row_label(m["name"], m["views"]) + tag + mask, "kind": kind, "mask": m.get("mask") or ""}
 
 
-def views_dir(name, views, case):
-    """Folder of the rendered views that method ``name`` reads for ``views`` views."""
-    return f"results/synth/{case}/{METHODS[name].layout}{views}"
+def views_dir(name, views, case, mask=None):
+    """Folder of the rendered views that method ``name`` reads for ``views`` views; with ``mask``
+    (a degradation of ``ipm.degrade``), their copy with every mask degraded by it."""
+    from ipm.degrade import slug
+
+    return f"results/synth/{case}/{METHODS[name].layout}{views}" + (f"_mask{slug(mask)}" if mask else "")
 
 
 def method_views_dir(wildcards):
     """Folder of the views (transforms.json, rgb/, masks/, semantic/) a row reads on a case."""
     m = method_of(wildcards)
-    return views_dir(m["name"], m["views"], wildcards.case)
+    return views_dir(m["name"], m["views"], wildcards.case, m.get("mask"))
 
 
 def recovery_views(wildcards):

@@ -42,3 +42,22 @@ rule synth:
         spp=config["synth"]["spp"],
     script:
         "../scripts/synth.py"
+
+
+rule degrade_masks:
+    input:
+        views="results/synth/{case}/{layout}{n}",
+    output:
+        views=directory("results/synth/{case}/{layout}{n}_mask{mask}"),
+    log:
+        "logs/degrade_masks/{case}/{layout}{n}_mask{mask}.log",
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        seed=config["mask_seed"],
+    script:
+        "../scripts/degrade_masks.py"
