@@ -110,26 +110,28 @@ PHOTO_QUALITY = 88
 """JPEG quality of the ``photo`` layout's images."""
 
 
-PHOTO_K1 = (-0.3, -0.1)
-"""Range of the radial distortion coefficient ``k1`` (OpenCV's model, normalised image
-coordinates) of the ``photo`` layout's distorted cases: a barrel distortion at the strong end of
-what lenses leave at the suite's 40-degree field of view (a 256 px frame's corners move by up to
-12 px, the object's edge, nearer the centre, by about half a pixel)."""
+PHOTO_DISTORTION = (0.02, 0.06)
+"""Range of the barrel distortion of the ``photo`` layout's distorted cases: the share by which
+the frame's corners move towards the centre (a lens's quoted distortion, -2 % to -6 %: strong for
+the suite's 40-degree lens, where the object's edge, nearer the centre, moves by under a pixel at
+256 px; the corners of a 256 px frame by 3-8 px). OpenCV's ``k1`` is this share over the corner's
+squared distance from the centre (normalised image coordinates), so it stays invertible at any
+field of view."""
 
 
 def photo_setting(case: str) -> dict:
     """How a case is photographed in the ``photo`` layout, fixed by its name: the backdrop
     (``ipm.render.photo_scene.BACKDROPS``), the scene's seed (the sun's direction, the ground's
     pattern), for half the cases a plain colour in place of the case's texture, and for a third a
-    radial lens distortion ``k1`` (:data:`PHOTO_K1`; 0 for a pinhole)."""
+    barrel lens (``distortion``: :data:`PHOTO_DISTORTION`; 0 for a pinhole)."""
     from ipm.render.photo_scene import BACKDROPS
 
     key = zlib.crc32(case.encode())
     rng = np.random.default_rng(key)
     plain = rng.uniform(0.05, 0.85, 3).round(3).tolist()
-    k1 = round(float(rng.uniform(*PHOTO_K1)), 4)
+    distortion = round(float(rng.uniform(*PHOTO_DISTORTION)), 4)
     return {"backdrop": BACKDROPS[key % len(BACKDROPS)], "seed": key % 100_003,
-            "plain": plain if (key >> 3) % 2 else None, "k1": k1 if (key >> 5) % 3 == 0 else 0.0}
+            "plain": plain if (key >> 3) % 2 else None, "distortion": distortion if (key >> 5) % 3 == 0 else 0.0}
 
 
 def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float, elevation: float,
@@ -217,7 +219,8 @@ def photographs(case: str, spec: dict, v, f, uv, c2w: np.ndarray, fov: float, re
 
     shot = photo_setting(case)
     focal = 0.5 * res / np.tan(0.5 * fov)
-    lens = nerfstudio_lens("OPENCV", focal, focal, 0.5 * res, 0.5 * res, {"k1": shot["k1"]}, res, res)
+    k1 = -shot["distortion"] / (2.0 * np.tan(0.5 * fov) ** 2)  # the corner's squared distance: 2 tan^2
+    lens = nerfstudio_lens("OPENCV", focal, focal, 0.5 * res, 0.5 * res, {"k1": k1}, res, res)
     margin = lens.twin_margin() if lens is not None else 0
     size = res + 2 * margin
     canvas_fov = 2.0 * float(np.arctan(0.5 * size / focal))

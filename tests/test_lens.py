@@ -179,3 +179,7 @@ def test_a_twin_drawn_with_a_margin_is_distorted_as_the_capture_sees_it():
     assert lens._twin_pixels_of_capture(0)[0].min() < -1  # without the margin the corners fall off
     with pytest.raises(UserError, match="with its margin"):
         lens.from_twin(twin[:, 1:], m)
+    # a barrel so strong at so wide a lens that its model turns back before the corners: no twin
+    wide = nerfstudio_lens("OPENCV", 50.0, 50.0, W / 2, H / 2, {"k1": -0.5}, W, H)
+    with pytest.raises(UserError, match="cannot be undone over its whole frame"):
+        wide.twin_margin()

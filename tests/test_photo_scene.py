@@ -87,12 +87,13 @@ def test_a_distorted_photo_case_writes_its_lens_and_reads_back_as_its_pinhole_tw
     from ipm.io.views import load_views
     from ipm.metrics.silhouette import view_ious
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.synth import PHOTO_K1, ground_truth_mesh, load_case, photo_setting
+    from ipm.synth import PHOTO_DISTORTION, ground_truth_mesh, load_case, photo_setting
 
-    k1 = photo_setting("cup_1")["k1"]
-    assert PHOTO_K1[0] <= k1 <= PHOTO_K1[1]
+    share = photo_setting("cup_1")["distortion"]
+    assert PHOTO_DISTORTION[0] <= share <= PHOTO_DISTORTION[1]
     meta = json.loads((photo_case / "transforms.json").read_text())
-    assert meta["camera_model"] == "OPENCV" and meta["k1"] == k1
+    corner = np.hypot(48.0, 48.0) / meta["fl_x"]  # the corner's distance from the centre, normalised
+    assert meta["camera_model"] == "OPENCV" and meta["k1"] == pytest.approx(-share / corner**2)
     views = load_views(photo_case / "transforms.json")
     assert views.lens is not None
     v, f, _, _ = ground_truth_mesh(load_case("cup_1"))

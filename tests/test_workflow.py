@@ -233,7 +233,7 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     table = pd.read_csv(tmp_path / "results/table.csv")
     cases = {"cup_1", "cup_ext", "tree_1", "cup_t2", "cup_goblet", "building_1"}
     assert set(table["case"]) == cases
-    masked = "ours (diff, 1 view) [mask: edge +2 px]"
+    masked = "ours (diff, 1 view) [mask: edge +4 px]"  # 1 px at the smoke run's 64 px
     assert set(table["label"]) == {"ours (diff, 1 view)", masked, "ours (GA, 1 view)", "diffSDF-style (2 views)",
                                    "learned regressor (1 view)",
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
@@ -243,9 +243,9 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     # diff: 3 cases x 2 seeds, on a degraded mask 1; the learned row, GA, COLMAP, diffSDF: their cases;
     # the reseeded truth: the one stochastic in-family case (tree_1); the rest: every case, once
     assert len(table) == 6 + 1 + 1 + 2 + 1 + 2 + 1 + 3 * len(cases)
-    assert table.loc[table["label"] == masked, "mask"].tolist() == ["edge +2 px"]
-    degraded = json.loads((store / "results/synth/cup_1/hemi1_maskedgep2px/degradation.json").read_text())
-    assert degraded["degradation"] == "edge +2 px" and 0.5 < degraded["mask_iou"][0] < 1.0
+    assert table.loc[table["label"] == masked, "mask"].tolist() == ["edge +4 px"]
+    degraded = json.loads((store / "results/synth/cup_1/hemi1_maskedgep4px/degradation.json").read_text())
+    assert degraded["degradation"] == "edge +4 px" and 0.5 < degraded["mask_iou"][0] < 1.0
     assert set(table.loc[table["label"] == "diffSDF-style (2 views)", "case"]) == {"cup_1", "building_1"}
     assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]

@@ -80,6 +80,9 @@ class Lens:
         """Pixels the pinhole twin's canvas must grow by on every side to hold all that the capture
         sees (a barrel lens sees past the twin's frame): for :meth:`from_twin`."""
         x, y = self._twin_pixels_of_capture(0)
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            raise UserError(f"the {self.model} lens {self.params} cannot be undone over its whole frame "
+                            "(its distortion turns back before the corners)")
         over = max(-x.min(), -y.min(), x.max() - (self.width - 1), y.max() - (self.height - 1), 0.0)
         return int(np.ceil(over)) + 2
 
