@@ -5,11 +5,11 @@ photo layout's quality; each segmenter's mask is scored by its IoU with the true
 backdrop, with the means per class and family.
 
     .venv/bin/python bench/segmentation.py [--cases cup_1 building_1] [--res 256] [--spp 128]
-        [--out results/bench/segmentation.json]
+        [--out results/bench/segmentation.json] [--weights SEGMENTER.json]
 
 Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border) and
-``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut). Tune nothing on
-test cases: the defaults are the dev cups and buildings.
+``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter or ``--weights``, then
+GrabCut). Tune nothing on test cases: the defaults are the dev cups and buildings.
 """
 from __future__ import annotations
 
@@ -64,6 +64,7 @@ def main(argv: list[str] | None = None) -> None:
     from ipm.io import write_json
     from ipm.render.photo_scene import BACKDROPS
     from ipm.runtime import configure_threads, set_mitsuba_variant
+    from ipm.learned.segmenter import load
     from ipm.segment import mask_from_image, mask_from_photo
     from ipm.synth import load_case
 
@@ -72,10 +73,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=128)
     ap.add_argument("--out", default="results/bench/segmentation.json")
+    ap.add_argument("--weights", default=None, help="the learned segmenter's weights (default: the shipped ones)")
     args = ap.parse_args(argv)
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)
-    segmenters = {"colour": mask_from_image, "learned": mask_from_photo}
+    model = load(args.weights) if args.weights else None
+    segmenters = {"colour": mask_from_image, "learned": lambda img: mask_from_photo(img, model)}
     rows = []
     for case in tqdm(args.cases, desc="cases"):
         spec = load_case(case)
