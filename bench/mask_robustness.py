@@ -61,12 +61,14 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ipm.degrade import edge_shift
+
     classes = sorted({r["generator"] for r in rows})
     fig, axes = plt.subplots(1, len(classes), figsize=(4.5 * len(classes), 3.4), squeeze=False)
     for ax, generator in zip(axes[0], classes):
         for case in sorted({r["case"] for r in rows if r["generator"] == generator}):
-            pts = sorted((shift_of(r["degradation"]), r["shape_iou"]) for r in rows
-                         if r["case"] == case and shift_of(r["degradation"]) is not None)
+            pts = sorted((edge_shift(r["degradation"]), r["shape_iou"]) for r in rows
+                         if r["case"] == case and edge_shift(r["degradation"]) is not None)
             xs = sorted({p for p, _ in pts})
             ax.plot(xs, [np.mean([v for p, v in pts if p == x]) for x in xs], "o-", label=case)
         ax.set(title=generator, xlabel="mask edge moved (px at 256 px; - inwards)", ylabel="shape IoU (64 views)")
@@ -75,15 +77,6 @@ def plot(rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-
-def shift_of(name: str) -> float | None:
-    """The edge shift (pixels) of a degradation's name, 0 for none, None for the others."""
-    if name == "none":
-        return 0.0
-    if name.startswith("edge "):
-        return float(name.split()[1])
-    return None
 
 
 def main() -> None:

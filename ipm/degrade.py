@@ -111,6 +111,16 @@ def degrade(mask: np.ndarray, name: str, rng: np.random.Generator) -> np.ndarray
     return out
 
 
+def edge_shift(name: str) -> float | None:
+    """The edge's shift in pixels (at :data:`REFERENCE_WIDTH`) of a degradation's name (``edge +2
+    px``: 2), 0 for ``none``, None for the degradations that do not move the edge."""
+    if name == "none":
+        return 0.0
+    if name.startswith("edge "):
+        return float(name.split()[1])
+    return None
+
+
 def slug(name: str) -> str:
     """A degradation's name as a word for row ids and folders (``edge +2 px`` -> ``edgep2px``)."""
     return "".join(c for c in name.replace("+", "p").replace("-", "m").lower() if c.isalnum())
@@ -137,6 +147,7 @@ def degrade_views(src, dst, name: str, seed: int) -> list[float]:
     from ipm.errors import UserError
     from ipm.io import atomic_dir, write_json
     from ipm.io.views import save_mask
+    from ipm.metrics.silhouette import view_ious
 
     src = Path(src)
     if not (src / "transforms.json").is_file():
@@ -155,6 +166,6 @@ def degrade_views(src, dst, name: str, seed: int) -> list[float]:
             except ValueError as exc:
                 raise UserError(f"{src}: view {i}: {exc}") from None
             save_mask(path, out)
-            ious.append(round(float((out & mask).sum() / max((out | mask).sum(), 1)), 4))
+            ious.append(round(float(view_ious(mask[None], out[None])[0]), 4))
         write_json(tmp / "degradation.json", {"degradation": name, "seed": seed, "mask_iou": ious})
     return ious

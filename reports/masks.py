@@ -6,16 +6,8 @@ import pandas as pd
 
 METRICS = {"shape_iou": "shape IoU", "iou_mean": "world IoU"}
 """What a degraded mask costs, each as the report names it."""
-
-
-def _shift(name: str) -> float | None:
-    """The edge's shift in pixels of a degradation's name (``edge +2 px``: 2), 0 for the true mask,
-    None for the degradations that do not move the edge."""
-    if name == "none":
-        return 0.0
-    if name.startswith("edge "):
-        return float(name.split()[1])
-    return None
+STYLES = {"shape_iou": "o-", "iou_mean": "s--"}
+"""Each metric's line in the plot: shape IoU solid, world IoU dashed."""
 
 
 def mask_pairs(df: pd.DataFrame) -> pd.DataFrame:
@@ -57,23 +49,23 @@ def mask_plot(pairs: pd.DataFrame):
     class and a line per row; None without edge shifts."""
     import matplotlib.pyplot as plt
 
+    from ipm.degrade import edge_shift
     from ipm.table import CLASS_NAMES
 
-    shifted = pairs[pairs["mask"].map(lambda n: _shift(str(n)) is not None)]
+    shifted = pairs[pairs["mask"].map(lambda n: edge_shift(str(n)) is not None)]
     if shifted.empty:
         return None
     classes = list(dict.fromkeys(shifted["generator"]))
     fig, axes = plt.subplots(1, len(classes), figsize=(4.6 * len(classes), 3.3), squeeze=False)
     for ax, generator in zip(axes[0], classes):
         part = shifted[shifted["generator"] == generator]
-        for (label, metric), style in zip([(lab, m) for lab in dict.fromkeys(part["label"]) for m in METRICS],
-                                          ["o-", "s--"] * len(part)):
-            rows = part[part["label"] == label]
-            points = {0.0: float(rows[f"{metric}_true"].mean())}
-            for name, g in rows.groupby("mask"):
-                points[_shift(str(name))] = float(g[metric].mean())
-            xs = sorted(points)
-            ax.plot(xs, [points[x] for x in xs], style, label=f"{label}: {METRICS[metric]}")
+        for label, rows in part.groupby("label", sort=False):
+            for metric, name in METRICS.items():
+                points = {0.0: float(rows[f"{metric}_true"].mean())}
+                for degradation, g in rows.groupby("mask"):
+                    points[edge_shift(str(degradation))] = float(g[metric].mean())
+                xs = sorted(points)
+                ax.plot(xs, [points[x] for x in xs], STYLES[metric], label=f"{label}: {name}")
         ax.set(title=CLASS_NAMES.get(generator, generator), xlabel="mask edge moved (px at 256 px; - inwards)",
                ylabel="64-view IoU, mean over runs")
         ax.grid(alpha=0.3)

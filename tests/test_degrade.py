@@ -64,6 +64,12 @@ def test_pixel_amounts_scale_with_the_image_width():
     np.testing.assert_array_equal(degrade(disk(40.0), "edge +2 px", np.random.default_rng(0)), shift_edge(disk(40.0), 2))
 
 
+def test_the_edge_shift_is_read_from_the_name():
+    from ipm.degrade import edge_shift
+
+    assert [edge_shift(n) for n in ("none", "edge -2 px", "edge +4 px", "hole")] == [0.0, -2.0, 4.0, None]
+
+
 def test_names_and_their_words_go_both_ways():
     from ipm.degrade import by_slug, slug
 
