@@ -25,6 +25,7 @@ from ipm.io.views import save_mask, save_rgb, write_views
 from datasets_synthetic import city_recipes, more_recipes  # noqa: F401  (register their recipes in RECIPES)
 from datasets_synthetic.recipes import RECIPES
 from ipm.render.cameras import is_fov_deg, orbit_camera
+from ipm.uv import corners_from_vertices
 
 FOV_X = 0.6911
 """Horizontal field of view of the reference cameras (radians), as in instant-ngp's examples,
@@ -93,6 +94,7 @@ def ground_truth_mesh(case: dict, lod: int | None = None):
         v, f, labels, uv = m.vertices, m.faces, m.labels, m.uv
     else:
         v, f, labels, uv = RECIPES[src["recipe"]](**src.get("args", {}))
+        uv = corners_from_vertices(f, uv)  # recipes give one UV a vertex
     pose = case.get("pose", {})
     # R_y of ipm.pose.yaw_matrix by trimesh's axis-angle formula, kept: at some angles it rounds the
     # 1 on the y axis to 1 - 2**-53, and the ground truths stay exactly as they were made

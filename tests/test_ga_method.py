@@ -105,7 +105,7 @@ def test_space_colonisation_tree_stands_with_both_parts():
     case = load_case("tree_ext")
     assert case["generator"] == "trees" and is_tree_case(case) and not is_tree_case(load_case("cup_ext"))
     v, f, labels, uv = ground_truth_mesh(case)
-    assert set(np.unique(labels)) == {0, 1} and len(uv) == len(v)
+    assert set(np.unique(labels)) == {0, 1} and uv.shape == (len(f), 3, 2)
     assert abs(v[:, 1].min()) < 1e-6 and 1.0 < np.ptp(v[:, 1]) < 2.0
     m = trimesh.Trimesh(v, f, process=False)
     assert m.is_watertight and m.is_winding_consistent

@@ -18,7 +18,7 @@ def _check_closed(gen, x, lod):
     m = gen.mesh(x, lod)
     assert np.all(np.isfinite(m.vertices)) and np.all(np.isfinite(m.normals))
     assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
-    assert len(m.labels) == len(m.faces) and len(m.uv) == len(m.vertices)
+    assert len(m.labels) == len(m.faces) and m.uv.shape == (len(m.faces), 3, 2)
     assert set(np.unique(m.labels)) <= set(range(len(m.part_names)))
     t = trimesh.Trimesh(m.vertices, m.faces, process=False)
     assert t.is_watertight and t.is_winding_consistent

@@ -15,7 +15,7 @@ def _box(lo=(-0.3, 0.0, -0.3), hi=(0.3, 0.8, 0.3)):
     import trimesh
 
     box = trimesh.creation.box(bounds=np.array([lo, hi]))
-    return np.asarray(box.vertices), np.asarray(box.faces), np.zeros((len(box.vertices), 2))
+    return np.asarray(box.vertices), np.asarray(box.faces), np.zeros((len(box.faces), 3, 2))
 
 
 @pytest.fixture(scope="module")

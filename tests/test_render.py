@@ -74,7 +74,7 @@ def test_gradient_matches_central_differences(variant, name, shift, delta):
     zt = z0.copy()
     zt[i] += shift
     targets = render(zt, seed=7)
-    grads = [renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=s)[1][i] for s in (1, 2)]
+    grads = [renderer.loss_and_grad(fn, z0, topo.faces, topo.n_vertices, targets, seed=s)[1][i] for s in (1, 2)]
     zp, zm = z0.copy(), z0.copy()
     zp[i] += delta
     zm[i] -= delta

@@ -83,7 +83,7 @@ def test_gradient_matches_central_differences(name, shift, delta):
     zt[i] += shift
     targets = render(zt, seed=7)
     renderer = EdgeRenderer(cams, FOV, 64, 64, spp=16)
-    grad = np.mean([renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=s)[1][i] for s in range(8)])
+    grad = np.mean([renderer.loss_and_grad(fn, z0, topo.faces, topo.n_vertices, targets, seed=s)[1][i] for s in range(8)])
     zp, zm = z0.copy(), z0.copy()
     zp[i] += delta
     zm[i] -= delta
@@ -104,7 +104,7 @@ def test_gradient_matches_mitsuba(mitsuba_cpu):
     targets = SilhouetteRenderer(cams, FOV, 64, 64, spp=64).render(np.asarray(fn(zt)).reshape(-1, 3), topo.faces)
     ours = EdgeRenderer(cams, FOV, 64, 64, spp=16)
     theirs = SilhouetteRenderer(cams, FOV, 64, 64, spp=16)
-    g = [np.mean([r.loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=s)[1] for s in range(6)], 0)
+    g = [np.mean([r.loss_and_grad(fn, z0, topo.faces, topo.n_vertices, targets, seed=s)[1] for s in range(6)], 0)
          for r in (ours, theirs)]
     assert g[0] @ g[1] / np.linalg.norm(g[0]) / np.linalg.norm(g[1]) > 0.97
     assert np.linalg.norm(g[0]) == pytest.approx(np.linalg.norm(g[1]), rel=0.1)
@@ -122,7 +122,7 @@ def test_batch_equals_single_calls_and_budget_grows():
     losses, grads = r.loss_and_grad_batch(fn, zs, topo.faces, targets, seeds=[5, 6, 7])
     for z, s, loss, grad in zip(zs, (5, 6, 7), losses, grads):
         small = EdgeRenderer(cams, FOV, 48, 48, spans=64)
-        single = small.loss_and_grad(fn, z, topo.faces, len(topo.uv), targets, seed=s)
+        single = small.loss_and_grad(fn, z, topo.faces, topo.n_vertices, targets, seed=s)
         assert single[0] == pytest.approx(loss, rel=1e-4)
         np.testing.assert_allclose(single[1], grad, rtol=1e-3, atol=1e-6)
 
@@ -137,11 +137,11 @@ def test_target_masks_kept_on_the_device_follow_the_array_passed():
     empty = np.zeros_like(full)
 
     def fresh(targets):
-        return EdgeRenderer(cams, FOV, 32, 32).loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=1)[0]
+        return EdgeRenderer(cams, FOV, 32, 32).loss_and_grad(fn, z0, topo.faces, topo.n_vertices, targets, seed=1)[0]
 
     r = EdgeRenderer(cams, FOV, 32, 32)
     for targets in (full, empty, full, empty.copy(), full.copy(), *[np.zeros_like(full) for _ in range(5)], full):
-        assert r.loss_and_grad(fn, z0, topo.faces, len(topo.uv), targets, seed=1)[0] == fresh(targets)
+        assert r.loss_and_grad(fn, z0, topo.faces, topo.n_vertices, targets, seed=1)[0] == fresh(targets)
     assert fresh(empty) > 10 * fresh(full)
 
 
@@ -150,7 +150,7 @@ def test_refusals():
     gen, problem, z0, fn, topo = _mug()
     r = EdgeRenderer(_cams()[:1], FOV, 32, 32)
     with pytest.raises(UserError, match="at most 2 class masks"):
-        r.loss_and_grad(fn, z0, [topo.faces, topo.faces[:2], topo.faces[2:4], topo.faces[4:6]], len(topo.uv),
+        r.loss_and_grad(fn, z0, [topo.faces, topo.faces[:2], topo.faces[2:4], topo.faces[4:6]], topo.n_vertices,
                         np.zeros((1, 32, 32)))
     with pytest.raises(UserError, match="batched calls draw silhouettes only"):
         r.loss_and_grad_batch(fn, z0[None], [topo.faces, topo.faces[:2]], np.zeros((1, 32, 32)), seeds=[0])
@@ -216,7 +216,7 @@ def test_class_gradient_matches_central_differences(mitsuba_cpu, name, classes):
         return sum(np.mean((img[:, k] - target[:, k]) ** 2) for k in range(len(groups)))
 
     ours = EdgeRenderer(cams, FOV, 96, 96, spp=16)
-    grad = np.mean([ours.loss_and_grad(fn, z0, groups, len(topo.uv), target[:, 0], seed=s,
+    grad = np.mean([ours.loss_and_grad(fn, z0, groups, topo.n_vertices, target[:, 0], seed=s,
                                        highlight_targets=target[:, 1:], highlight_weight=[1.0] * len(classes))[1][i]
                     for s in range(6)])
     zp, zm = z0.copy(), z0.copy()
@@ -239,7 +239,7 @@ def test_back_faces_culled_on_closed_solids_change_nothing_but_the_work():
     np.testing.assert_allclose(culled.render(v, groups, seed=2), masks, atol=1e-6)
     z1 = z0.copy()
     z1[gen.spec.index["window_width"]] += 0.15
-    args = (fn, z1, groups, len(topo.uv), masks[:, 0])
+    args = (fn, z1, groups, topo.n_vertices, masks[:, 0])
     kw = dict(seed=5, highlight_targets=masks[:, 1], highlight_weight=1.0)
     (la, ga), (lb, gb) = plain.loss_and_grad(*args, **kw), culled.loss_and_grad(*args, **kw)
     assert lb == pytest.approx(la, rel=1e-6) and np.abs(ga).max() > 0
@@ -331,7 +331,7 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
 
     def numbers(every: bool = True):
         r = EdgeRenderer(cams, FOV, 32, 32)
-        out = list(r.loss_and_grad(fn, zs[0], topo.faces, len(topo.uv), targets, seed=3))
+        out = list(r.loss_and_grad(fn, zs[0], topo.faces, topo.n_vertices, targets, seed=3))
         if every:  # the class loss without the building's pullback (half a minute to compile)
             class_loss = edges._class_loss_fn(32, 32, h.ss, budgets, ((0.5,), 1, "mse"))
             out += [*r.loss_and_grad_batch(fn, zs, topo.faces, targets, seeds=[3, 4]), *h.render(v, groups)[0],

@@ -31,7 +31,7 @@ def test_ground_truths_are_closed_and_upright(case):
     # + 0.4 (chimney) = 4.8 at scale 1, 5.5 at the sampler's largest pose scale 1.15; a unit slip
     # (cm, mm) is off by 100x
     assert abs(v[:, 1].min()) < 0.02 and 0.3 <= np.ptp(v[:, 1]) <= 5.5
-    assert len(labels) == len(f) and len(uv) == len(v)
+    assert len(labels) == len(f) and uv.shape == (len(f), 3, 2)
 
 
 def _assert_masks_match_raycast(ref, views) -> None:

@@ -55,7 +55,7 @@ def _check_mesh(m: Mesh, height: float, leaves: bool) -> None:
     assert isinstance(m, Mesh) and m.part_names == ("branch", "foliage")
     assert np.all(np.isfinite(v)) and np.all(np.isfinite(m.normals)) and np.all(np.isfinite(m.uv))
     assert f.min() >= 0 and f.max() < len(v)
-    assert len(m.labels) == len(f) and len(m.uv) == len(v) and len(m.normals) == len(v)
+    assert len(m.labels) == len(f) and m.uv.shape == (len(f), 3, 2) and len(m.normals) == len(v)
     np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-6)
     assert set(np.unique(m.labels)) == ({0, 1} if leaves else {0})
     assert abs(v[:, 1].min()) < 1e-9  # stands on y = 0
@@ -177,7 +177,7 @@ def test_registered_and_usable_like_ground_truth():
     case = {"source": {"generator": "trees", "preset": "pine", "params": {"seed": 3}},
             "pose": {"yaw_deg": 30.0, "scale": 0.5}}
     v, f, labels, uv = ground_truth_mesh(case, lod=0)
-    assert v.shape[1] == 3 and len(labels) == len(f) and len(uv) == len(v) and set(np.unique(labels)) == {0, 1}
+    assert v.shape[1] == 3 and len(labels) == len(f) and uv.shape == (len(f), 3, 2) and set(np.unique(labels)) == {0, 1}
     assert np.ptp(v[:, 1]) == pytest.approx(0.5 * GEN.presets["pine"][GEN.spec.index["height"]])
     with pytest.raises(NotImplementedError, match="not differentiable"):
         GEN.positions_fn((), 0)

@@ -106,9 +106,9 @@ def _window_gradients(name):
         img = render(z, seed)
         return np.mean((img[:, 0] - sil) ** 2) + np.mean((img[:, 1] - win) ** 2)
 
-    grads = [renderer.loss_and_grad(fn, z0, groups, len(topo.uv), sil, seed=s,
+    grads = [renderer.loss_and_grad(fn, z0, groups, topo.n_vertices, sil, seed=s,
                                     highlight_targets=win, highlight_weight=1.0)[1][i] for s in (1, 2)]
-    silhouette_only = renderer.loss_and_grad(fn, z0, topo.faces, len(topo.uv), sil, seed=1)[1][i]
+    silhouette_only = renderer.loss_and_grad(fn, z0, topo.faces, topo.n_vertices, sil, seed=1)[1][i]
     delta = 0.01
     zp, zm = z0.copy(), z0.copy()
     zp[i] += delta
@@ -206,7 +206,7 @@ def test_one_scene_serves_every_topology(building_views, renderer):
                                                                          obj.targets.shape[1], 8)
     loss, grad = own.loss_and_grad(problem.vertex_fn(key, 2), zs[-1],
                                    [topo.faces[~np.any(inside, 0)]] + [topo.faces[m] for m in inside],
-                                   len(topo.uv), obj.targets, seed=3, highlight_targets=obj.class_targets,
+                                   topo.n_vertices, obj.targets, seed=3, highlight_targets=obj.class_targets,
                                    highlight_weight=obj.class_weight, highlight_levels=obj.class_levels,
                                    highlight_loss=obj.class_loss)
     reg, reg_grad = problem.regulariser(zs[-1], obj.reg)

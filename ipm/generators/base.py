@@ -94,7 +94,10 @@ class Topology:
     labels: np.ndarray
     """Part label per triangle, shape (F,), indexing the generator's ``part_names``."""
     uv: np.ndarray
-    """Texture coordinates per vertex, shape (V, 2); u wraps around at 1 for revolved parts."""
+    """Texture coordinates per triangle corner, shape (F, 3, 2): each part's charts in [0, 1]^2
+    (``ipm.uv``), a seam splitting a vertex's UV without splitting the vertex."""
+    n_vertices: int
+    """How many positions the topology's faces index."""
 
 
 @dataclass
@@ -108,7 +111,7 @@ class Mesh:
     normals: np.ndarray
     """Unit vertex normals, shape (V, 3)."""
     uv: np.ndarray
-    """Texture coordinates, shape (V, 2)."""
+    """Texture coordinates per triangle corner, shape (F, 3, 2)."""
     labels: np.ndarray
     """Part label per triangle, shape (F,)."""
     part_names: tuple[str, ...]
@@ -249,10 +252,10 @@ def build_mesh(vertices: np.ndarray, topo: Topology, part_names: tuple[str, ...]
     if len(used) < len(vertices):
         remap = np.full(len(vertices), -1, np.int64)
         remap[used] = np.arange(len(used))
-        vertices, uv, faces = vertices[used], topo.uv[used], remap[topo.faces]
+        vertices, faces = vertices[used], remap[topo.faces]
     else:
-        uv, faces = topo.uv, topo.faces
-    return Mesh(vertices, faces, vertex_normals(vertices, faces), uv, topo.labels, part_names)
+        faces = topo.faces
+    return Mesh(vertices, faces, vertex_normals(vertices, faces), topo.uv, topo.labels, part_names)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

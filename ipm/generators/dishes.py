@@ -21,6 +21,7 @@ import numpy as np
 from ipm.generators.base import GENERATORS, Generator, Topology, make_spec
 from ipm.generators.geometry import (catmull_rom_at, catmull_rom_matrix, closed_sweep_faces,
                                      revolve, sweep_tube)
+from ipm.uv import sweep_atlas, sweep_uv
 
 N_PROFILE, N_HANDLE = 9, 20
 WALL = 0.03
@@ -40,6 +41,45 @@ _SPEC_ROWS = (
 
 # (profile points, ring points, handle samples, handle ring points) per level of detail
 _LOD = {0: (24, 32, 24, 8), 1: (40, 64, 40, 12), 2: (80, 128, 80, 16)}
+
+
+def _body_rows(n_p: int) -> np.ndarray:
+    """v of the body's rows along its unrolled profile, by the presets' mean lengths: the outer wall
+    by height, the rim, the inner wall down to the bottom (the same v at a profile point at every
+    level of detail)."""
+    h, rim, bottom = _MEAN["height"], _MEAN["rim"], _MEAN["bottom"]
+    t = np.linspace(0.0, 1.0, n_p)
+    length = 2 * h + rim - bottom
+    return np.concatenate([t * h, h + rim + t * (h - bottom)]) / length
+
+
+@lru_cache(maxsize=None)
+def _atlases():
+    """The body's and the handle's charts (``ipm.uv.sweep_atlas``), sized by the presets' means: the
+    body's profile unrolled round its mean circumference, the outer and inner bottoms as discs; the
+    handle's tube round its mean girth along its mean length, its two end caps."""
+    m = _MEAN
+    body = sweep_atlas((2 * np.pi * m["radius"], 2 * m["height"] + m["rim"] - m["bottom"]),
+                       (m["base_out"], m["base_in"]))
+    handle = sweep_atlas((2 * np.pi * m["tube"], m["path"]), (m["tube"], m["tube"]))
+    return body, handle
+
+
+def _preset_means(presets: dict) -> dict:
+    """Mean sizes of the presets' parts (object units), which fix the charts' proportions."""
+    w = catmull_rom_matrix(N_PROFILE, 64)
+    rows = []
+    for x in presets.values():
+        r = np.maximum(w @ (PROFILE_UNIT * x[:N_PROFILE]), 0.005)
+        r_in = r - WALL * r / (r + WALL)
+        h = x[N_PROFILE]
+        rows.append({"radius": r.mean(), "height": h, "rim": r[-1] - r_in[-1], "bottom": min(BOTTOM, 0.25 * h),
+                     "base_out": r[0], "base_in": r_in[0]})
+        if x[N_PROFILE + 1] > 0.5:
+            i = N_PROFILE + 4
+            rows[-1] |= {"tube": x[N_PROFILE + 2] * x[i + N_HANDLE:i + 2 * N_HANDLE].mean(),
+                         "path": np.pi * x[i:i + N_HANDLE].mean() * h}
+    return {k: float(np.mean([r[k] for r in rows if k in r])) for k in rows[0] | rows[-1]}
 
 
 def _preset(spec, profile, y_scale, handle=None):
@@ -130,17 +170,15 @@ class Dishes(Generator):
         rows = 2 * n_p
         faces = [closed_sweep_faces(rows, n_r)[:, ::-1]]  # outward for the y-up revolve
         labels = [np.zeros(len(faces[0]), np.int32)]
-        u = np.tile(np.arange(n_r) / n_r, rows)
-        v = np.repeat(np.arange(1, rows + 1) / (rows + 1), n_r)
-        uv = [np.array([[0.5, 0.0]]), np.stack([u, v], 1), np.array([[0.5, 1.0]])]
+        body, handle = _atlases()
+        uv = [sweep_uv(faces[0], rows, n_r, 0, _body_rows(n_p), *body)]
         if key[0]:
             offset = rows * n_r + 2
             faces.append(closed_sweep_faces(n_s, n_c, offset))
             labels.append(np.ones(len(faces[-1]), np.int32))
-            u = np.tile(np.arange(n_c) / n_c, n_s)
-            v = np.repeat(np.arange(1, n_s + 1) / (n_s + 1), n_c)
-            uv += [np.array([[0.5, 0.0]]), np.stack([u, v], 1), np.array([[0.5, 1.0]])]
-        return Topology(np.concatenate(faces), np.concatenate(labels), np.concatenate(uv))
+            uv.append(sweep_uv(faces[-1], n_s, n_c, offset, np.linspace(0.0, 1.0, n_s), *handle))
+        n_vertices = rows * n_r + 2 + (n_s * n_c + 2 if key[0] else 0)
+        return Topology(np.concatenate(faces), np.concatenate(labels), np.concatenate(uv), n_vertices)
 
     @lru_cache(maxsize=None)
     def positions_fn(self, key, lod):
@@ -180,3 +218,7 @@ class Dishes(Generator):
             return jnp.concatenate(parts).astype(jnp.float32)
 
         return jax.jit(positions)
+
+
+_MEAN = _preset_means(Dishes.presets)
+"""Mean sizes of the presets' parts, which fix the charts' proportions (``_atlases``)."""

@@ -56,6 +56,7 @@ from ipm.generators.base import GENERATORS, Generator, Mesh, make_spec
 from ipm.generators.trees_geometry import (BranchGraph, Stems, cross, curve_per_segment, graph_arrays, leaf_mesh,
                                           rodrigues, shape_ratio, tube_mesh, unit)
 from ipm.io.semantic import BRANCH, FOLIAGE, LABEL_NAMES
+from ipm.uv import corners_from_vertices
 
 N_LEVELS = 3
 """Branch levels below the trunk (W-P ``Levels`` counts the trunk too)."""
@@ -585,7 +586,8 @@ class Trees(Generator):
         scale = p["height"] / max(hi - lo, 1e-9)
         shift = np.array([0.0, -lo, 0.0])
         v = (v + shift) * scale
-        mesh = Mesh(v, f, np.concatenate(normals), np.concatenate(uvs), np.concatenate(labels), self.part_names)
+        mesh = Mesh(v, f, np.concatenate(normals), corners_from_vertices(f, np.concatenate(uvs)), np.concatenate(labels),
+                    self.part_names)
         gp, gr, ge, gl = graph_arrays(stems)
         graph = BranchGraph((gp + shift) * scale, gr * scale, ge, gl, n_leaves)
         return mesh, graph

@@ -9,6 +9,7 @@ import trimesh
 
 from ipm.errors import UserError
 from ipm.io.atomic import atomic_path
+from ipm.uv import weld
 
 
 def load_mesh(path: str | os.PathLike, allow_empty: bool = False) -> trimesh.Trimesh:
@@ -63,11 +64,14 @@ def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, l
         sel = faces[labels == k]
         if len(sel) == 0:
             continue
-        used, inv = np.unique(sel, return_inverse=True)
+        if uv is None:
+            used, inv = np.unique(sel, return_inverse=True)
+            uv_part = None
+        else:
+            used, inv, uv_part = weld(sel, np.asarray(uv)[labels == k])
         colour = [*PART_COLOURS[k % len(PART_COLOURS)], 1.0]
         material = trimesh.visual.material.PBRMaterial(name=name, baseColorFactor=colour, metallicFactor=0.0,
                                                        roughnessFactor=0.8)
-        uv_part = None if uv is None else np.asarray(uv)[used]
         visual = trimesh.visual.TextureVisuals(uv=uv_part, material=material)
         part = trimesh.Trimesh(vertices[used], inv.reshape(-1, 3), visual=visual, process=False,
                                vertex_normals=None if normals is None else np.asarray(normals)[used])

@@ -22,12 +22,8 @@ def procedural_texture(seed: int, size: int = 512) -> np.ndarray:
 
 
 def unweld(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray):
-    """One vertex per face corner, with u unwrapped across the seam of revolved parts."""
-    corners_uv = uv[faces].copy()  # (F, 3, 2)
-    u = corners_uv[..., 0]
-    wrap = (u.max(1) - u.min(1)) > 0.5
-    u[wrap] = np.where(u[wrap] < 0.5, u[wrap] + 1.0, u[wrap])
-    return vertices[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3), corners_uv.reshape(-1, 2)
+    """One vertex per face corner with its corner's UV (``uv`` (F, 3, 2), ``ipm.uv``)."""
+    return vertices[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3), np.asarray(uv).reshape(-1, 2)
 
 
 PART_COLOURS = np.array([[0.75, 0.75, 0.78], [0.85, 0.35, 0.15], [0.2, 0.55, 0.25], [0.2, 0.35, 0.8],

@@ -110,7 +110,7 @@ class Objective:
                 topo.faces[part_class[topo.labels] == k] for k in range(len(self.class_labels) + 1)]
         faces = self._split[key]
         if not gen.shared_positions:
-            return self.problem.vertex_fn(key, self.lod), faces, len(topo.uv)
+            return self.problem.vertex_fn(key, self.lod), faces, topo.n_vertices
         if self._shared is None:
             parts = np.arange(len(gen.part_names))
             groups = tuple(tuple(parts[part_class == k]) for k in range(len(self.class_labels) + 1))

@@ -345,7 +345,7 @@ class Buildings(Generator):
         v = np.asarray(self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)), np.float64)
         fh = float(x[self.spec.index["floor_height"]])
         uv = np.stack([(v[:, 0] + v[:, 2]) / fh, v[:, 1] / fh], 1)  # one texture tile per storey
-        return Topology(faces, labels.astype(np.int32), uv)
+        return Topology(faces, labels.astype(np.int32), uv[faces], len(v))
 
     def positions_fn(self, key, lod):
         """One function for every topology at ``lod`` (the solids at their largest counts; the

@@ -1,0 +1,124 @@
+"""Texture coordinates: one UV per triangle corner, charts of swept surfaces, the welding of
+corners into a file's vertices, and the two measures of a layout (overlap inside a part, texel
+stretch) that ``docs/design``, "Outputs" asks of every generator.
+
+A corner's UV (shape (F, 3, 2)) lets a seam split a vertex without splitting the mesh: the
+positions stay one watertight solid, and a writer welds the corners that share a vertex and a UV.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def corners_from_vertices(faces: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Per-corner UVs (F, 3, 2) from per-vertex ones (V, 2), u unwrapped across the seam of a
+    revolved part (a triangle whose u spans more than a half takes its small u past 1)."""
+    corner = np.asarray(uv, np.float64)[np.asarray(faces)].copy()
+    u = corner[..., 0]
+    wrap = (u.max(1) - u.min(1)) > 0.5
+    u[wrap] = np.where(u[wrap] < 0.5, u[wrap] + 1.0, u[wrap])
+    return corner
+
+
+def sweep_uv(faces: np.ndarray, n_rows: int, n_ring: int, offset: int, row_v: np.ndarray,
+             strip: tuple[float, float, float, float], caps: tuple[tuple[float, float, float], ...]) -> np.ndarray:
+    """Per-corner UVs of a closed sweep (``ipm.generators.geometry.closed_sweep_faces``: pole A, rows
+    of ``n_ring`` vertices, pole B, from ``offset``): the rows unrolled into ``strip`` (u0, v0, u1, v1),
+    u by the ring's angle (the seam's column at u1), v by ``row_v`` (n_rows,) in [0, 1]; each pole's
+    fan flattened into its cap's disc (centre u, centre v, radius), the ring at the disc's edge."""
+    faces = np.asarray(faces) - offset
+    u0, v0, u1, v1 = strip
+    pole_a, pole_b = 0, 1 + n_rows * n_ring
+    row, col = np.divmod(np.clip(faces - 1, 0, None), n_ring)
+    seam = (col.max(1, keepdims=True) == n_ring - 1) & (col == 0)
+    frac = (col + n_ring * seam) / n_ring
+    out = np.stack([u0 + (u1 - u0) * frac, v0 + (v1 - v0) * np.asarray(row_v)[np.minimum(row, n_rows - 1)]], -1)
+    for pole, (cu, cv, r) in zip((pole_a, pole_b), caps):
+        fan = (faces == pole).any(1)
+        theta = 2 * np.pi * col[fan] / n_ring
+        disc = np.stack([cu + r * np.cos(theta), cv + r * np.sin(theta)], -1)
+        disc[faces[fan] == pole] = (cu, cv)
+        out[fan] = disc
+    return out
+
+
+def weld(faces: np.ndarray, corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One vertex per distinct (vertex, UV) pair: the source vertex of each (W,), the faces over them
+    (F, 3) and their UVs (W, 2)."""
+    faces = np.asarray(faces)
+    key = np.concatenate([faces.reshape(-1, 1),
+                          np.round(np.asarray(corner_uv).reshape(-1, 2) * (1 << 24)).astype(np.int64)], 1)
+    unique, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return unique[:, 0], inverse.reshape(faces.shape), np.asarray(corner_uv).reshape(-1, 2)[first]
+
+
+def overlap(corner_uv: np.ndarray, res: int = 1024) -> float:
+    """Share of the texels (pixel centres of a ``res`` square over [0, 1]^2) inside some triangle
+    that lie inside more than one: 0 for a layout without overlaps (a texel on a shared edge counts
+    for neither triangle)."""
+    tri = np.asarray(corner_uv, np.float64) * res - 0.5  # pixel centres at integers
+    count = np.zeros((res, res), np.int32)
+    lo = np.clip(np.ceil(tri.min(1)), 0, res - 1).astype(int)
+    hi = np.clip(np.floor(tri.max(1)), 0, res - 1).astype(int)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    for k in np.flatnonzero(np.abs(det) > 1e-12):
+        xs, ys = np.meshgrid(np.arange(lo[k, 0], hi[k, 0] + 1), np.arange(lo[k, 1], hi[k, 1] + 1))
+        px, py = xs - a[k, 0], ys - a[k, 1]
+        s = (px * (c[k, 1] - a[k, 1]) - py * (c[k, 0] - a[k, 0])) / det[k]
+        t = (py * (b[k, 0] - a[k, 0]) - px * (b[k, 1] - a[k, 1])) / det[k]
+        inside = (s > 1e-9) & (t > 1e-9) & (s + t < 1 - 1e-9)
+        count[ys[inside], xs[inside]] += 1
+    covered = int((count > 0).sum())
+    return float((count > 1).sum() / covered) if covered else 0.0
+
+
+def stretch(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Texel stretch per triangle and its surface area: how many times longer or shorter than the
+    part's mean a texel is along its worst direction (1 where the map is a similarity at the part's
+    mean density; infinite where a triangle has no UV area)."""
+    p = np.asarray(vertices, np.float64)[np.asarray(faces)]
+    q = np.asarray(corner_uv, np.float64)
+    e = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], -1)  # (F, 3, 2)
+    d = np.stack([q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]], -1)  # (F, 2, 2)
+    area3 = 0.5 * np.linalg.norm(np.cross(e[..., 0], e[..., 1]), axis=1)
+    det = np.linalg.det(d)
+    area2 = 0.5 * np.abs(det)
+    scale = np.sqrt(area3.sum() / max(area2.sum(), 1e-30))
+    out = np.full(len(p), np.inf)
+    ok = area2 > 1e-14 * max(area2.max(initial=0.0), 1e-30)
+    jac = e[ok] @ np.linalg.inv(d[ok])  # (k, 3, 2): UV to surface
+    sv = np.linalg.svd(jac, compute_uv=False)
+    out[ok] = np.maximum(sv[:, 0] / scale, scale / np.maximum(sv[:, 1], 1e-30))
+    return out, area3
+
+
+def area_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
+    """The ``q`` quantile of ``values`` with each counted by its weight (a triangle by its area)."""
+    order = np.argsort(values)
+    cum = np.cumsum(np.asarray(weights, np.float64)[order])
+    return float(np.asarray(values)[order][min(np.searchsorted(cum, q * cum[-1]), len(cum) - 1)])
+
+
+def sweep_atlas(strip: tuple[float, float], radii: tuple[float, ...], gutter: float = 4 / 1024):
+    """A part's atlas of a swept surface: its strip (width around, length along; surface units) and
+    its caps (radii) at one density with ``gutter`` between charts and round the edge, the caps in a
+    row below the strip or in a column beside it, whichever lets the charts be larger. Returns the
+    strip's box (u0, v0, u1, v1) and the caps' discs (centre u, centre v, radius) in [0, 1]."""
+    w, h = strip
+    caps = 2 * float(sum(radii))
+    big = 2 * max(radii, default=0.0)
+    n = len(radii)
+    # (extent, gutters) along u and v for caps below, then beside
+    layouts = {True: ((max(w, caps), 2 + max(n - 1, 0) * (caps > w)), (h + big, 3)),
+               False: ((w + big, 3), (max(h, caps), 2 + max(n - 1, 0) * (caps > h)))}
+    scale = {b: min((1 - g * gutter) / e for e, g in axes) for b, axes in layouts.items()}
+    below = scale[True] >= scale[False]
+    k = scale[below]
+    box = (gutter, gutter, gutter + k * w, gutter + k * h)
+    discs, at = [], gutter
+    for r in radii:
+        centre = (at + k * r, box[3] + gutter + k * r) if below else (box[2] + gutter + k * r, at + k * r)
+        discs.append((*centre, k * r))
+        at += 2 * k * r + gutter
+    return box, tuple(discs)
