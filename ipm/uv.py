@@ -74,22 +74,25 @@ def overlap(corner_uv: np.ndarray, res: int = 1024) -> float:
 
 
 def stretch(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Texel stretch per triangle and its surface area: how many times longer or shorter than the
-    part's mean a texel is along its worst direction (1 where the map is a similarity at the part's
-    mean density; infinite where a triangle has no UV area)."""
+    """Texel stretch per triangle and its surface area: how many times farther than a typical texel
+    of the part a texel reaches on the surface along its longest direction (the largest singular
+    value of the map from UV to surface, Sander et al.'s L-infinity stretch, over the part's
+    area-weighted median of the triangles' mean scales: 1 for a similarity at that density, below 1
+    where texels are to spare; infinite where a triangle has no UV area)."""
     p = np.asarray(vertices, np.float64)[np.asarray(faces)]
     q = np.asarray(corner_uv, np.float64)
     e = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], -1)  # (F, 3, 2)
     d = np.stack([q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]], -1)  # (F, 2, 2)
     area3 = 0.5 * np.linalg.norm(np.cross(e[..., 0], e[..., 1]), axis=1)
-    det = np.linalg.det(d)
-    area2 = 0.5 * np.abs(det)
-    scale = np.sqrt(area3.sum() / max(area2.sum(), 1e-30))
+    area2 = 0.5 * np.abs(np.linalg.det(d))
     out = np.full(len(p), np.inf)
     ok = area2 > 1e-14 * max(area2.max(initial=0.0), 1e-30)
+    if not ok.any():
+        return out, area3
     jac = e[ok] @ np.linalg.inv(d[ok])  # (k, 3, 2): UV to surface
     sv = np.linalg.svd(jac, compute_uv=False)
-    out[ok] = np.maximum(sv[:, 0] / scale, scale / np.maximum(sv[:, 1], 1e-30))
+    typical = area_quantile(np.sqrt(area3[ok] / area2[ok]), area3[ok], 0.5)
+    out[ok] = sv[:, 0] / max(typical, 1e-30)
     return out, area3
 
 
@@ -122,3 +125,50 @@ def sweep_atlas(strip: tuple[float, float], radii: tuple[float, ...], gutter: fl
         discs.append((*centre, k * r))
         at += 2 * k * r + gutter
     return box, tuple(discs)
+
+
+def pack(sizes: np.ndarray, gutter: float = 2 / 1024) -> tuple[np.ndarray, float]:
+    """Rectangles ``sizes`` (N, 2) (surface units) placed in the unit square at one scale, ``gutter``
+    apart and from the edge, in shelves by height: their lower-left corners (N, 2) and the scale
+    (the largest that fits, to a part in a thousand)."""
+    sizes = np.asarray(sizes, np.float64)
+    order = np.argsort(-sizes[:, 1], kind="stable")
+    w, h = sizes[order, 0], sizes[order, 1]
+
+    def shelves(k):
+        """Corners at scale ``k`` (sorted order) and the height used, or None where a rectangle is
+        wider than the square."""
+        room = 1 - 2 * gutter
+        if k * w.max(initial=0.0) > room:
+            return None
+        step = np.cumsum(k * w + gutter)
+        corners, i, top = np.zeros((len(w), 2)), 0, gutter
+        while i < len(w):
+            base = step[i - 1] if i else 0.0
+            j = max(int(np.searchsorted(step - base, room + gutter, side="right")), i + 1)
+            corners[i:j, 0] = gutter + (step[i:j] - base) - (k * w[i:j] + gutter)
+            corners[i:j, 1] = top
+            top += k * h[i] + gutter
+            i = j
+        return corners, top
+
+    lo, hi = 0.0, 1.0 / max(np.sqrt((sizes.prod(1)).sum()), 1e-12)
+    while (fit := shelves(hi)) is not None and fit[1] <= 1:
+        lo, hi = hi, 2 * hi
+    for _ in range(40):
+        if hi - lo <= 1e-3 * hi:
+            break
+        mid = 0.5 * (lo + hi)
+        fit = shelves(mid)
+        lo, hi = (mid, hi) if fit is not None and fit[1] <= 1 else (lo, mid)
+    corners = np.empty_like(sizes)
+    corners[order] = shelves(lo)[0]
+    return corners, lo
+
+
+def pack_charts(local: np.ndarray, chart: np.ndarray, sizes: np.ndarray, gutter: float = 2 / 1024) -> np.ndarray:
+    """Per-corner UVs (F, 3, 2) in the unit square of one part: each triangle's corners ``local``
+    (F, 3, 2) in its chart's own frame (surface units, within [0, size]), ``chart`` (F,) its chart,
+    ``sizes`` (C, 2) the charts' extents, packed by :func:`pack`."""
+    corner, scale = pack(sizes, gutter)
+    return corner[chart][:, None, :] + scale * np.asarray(local)

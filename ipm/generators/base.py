@@ -110,8 +110,9 @@ class Mesh:
     """Triangles, shape (F, 3)."""
     normals: np.ndarray
     """Unit vertex normals, shape (V, 3)."""
-    uv: np.ndarray
-    """Texture coordinates per triangle corner, shape (F, 3, 2)."""
+    uv: np.ndarray | None
+    """Texture coordinates per triangle corner, shape (F, 3, 2); None only where a search asked
+    for a mesh without them."""
     labels: np.ndarray
     """Part label per triangle, shape (F,)."""
     part_names: tuple[str, ...]

@@ -56,7 +56,7 @@ from ipm.generators.base import GENERATORS, Generator, Mesh, make_spec
 from ipm.generators.trees_geometry import (BranchGraph, Stems, cross, curve_per_segment, graph_arrays, leaf_mesh,
                                           rodrigues, shape_ratio, tube_mesh, unit)
 from ipm.io.semantic import BRANCH, FOLIAGE, LABEL_NAMES
-from ipm.uv import corners_from_vertices
+from ipm.uv import pack_charts
 
 N_LEVELS = 3
 """Branch levels below the trunk (W-P ``Levels`` counts the trunk too)."""
@@ -467,6 +467,24 @@ def _levels(n, branches, length, length_v, down, down_v, rotate, curve, curve_ba
             q + "curve_v": curve_v, q + "curve_res": res, q + "seg_splits": seg_splits}
 
 
+
+def _uv(charts: list[tuple], labels: np.ndarray) -> np.ndarray:
+    """Per-corner UVs of a tree's triangles: each part's charts (every stem's side and caps, every
+    leaf's two sides; ``tube_mesh``, ``leaf_mesh``, in the faces' order) packed into its own square."""
+    uv = np.zeros((len(labels), 3, 2))
+    local = np.concatenate([c[0] for c in charts])
+    chart, sizes, offset = [], [], 0
+    for c in charts:
+        chart.append(c[1] + offset)
+        sizes.append(c[2])
+        offset += len(c[2])
+    chart, sizes = np.concatenate(chart), np.concatenate(sizes)
+    for part in np.unique(labels):
+        sel = labels == part
+        used, inverse = np.unique(chart[sel], return_inverse=True)
+        uv[sel] = pack_charts(local[sel], inverse, sizes[used])
+    return uv
+
 @GENERATORS.register("trees")
 class Trees(Generator):
     """Weber-Penn trees: trunk, up to three recursive branch levels and leaves; stochastic by ``seed``."""
@@ -548,8 +566,9 @@ class Trees(Generator):
     def positions_fn(self, key, lod):
         raise NotImplementedError("the trees generator is not differentiable: use generate() or mesh()")
 
-    def generate(self, x: np.ndarray, lod: int = 1) -> tuple[Mesh, BranchGraph]:
-        """The tree mesh (parts branch, foliage) and its branch graph for physical parameters ``x``."""
+    def generate(self, x: np.ndarray, lod: int = 1, uv: bool = True) -> tuple[Mesh, BranchGraph]:
+        """The tree mesh (parts branch, foliage) and its branch graph for physical parameters ``x``;
+        ``uv=False`` leaves the texture charts out (``Mesh.uv`` None: a search's evaluations)."""
         x = np.asarray(x, np.float64)
         if x.shape != (len(self.spec),) or not np.all(np.isfinite(x)):
             raise UserError(f"trees need {len(self.spec)} finite parameters, got shape {x.shape}")
@@ -558,13 +577,13 @@ class Trees(Generator):
         p = self.spec.as_dict(self.spec.clip(x))
         tree = _Tree(p, int(lod))
         stems = tree.build()
-        verts, faces, uvs, labels, normals = [], [], [], [], []
+        verts, faces, charts, labels, normals = [], [], [], [], []
         n_v = 0
         for level, st in enumerate(stems):
-            v, f, uv, n = tube_mesh(st, tree.rings[level])
+            v, f, chart, n = tube_mesh(st, tree.rings[level])
             verts.append(v)
             faces.append(f + n_v)
-            uvs.append(uv)
+            charts.append(chart)
             normals.append(n)
             labels.append(np.zeros(len(f), np.int32))
             n_v += len(v)
@@ -573,10 +592,10 @@ class Trees(Generator):
         leaf = tree.leaves(stems[-1], p["leaf_scale"] * (hi - lo))
         n_leaves = 0
         if leaf is not None:
-            v, f, uv, n = leaf_mesh(*leaf, int(p["leaf_shape"]))
+            v, f, chart, n = leaf_mesh(*leaf, int(p["leaf_shape"]))
             verts.append(v)
             faces.append(f + n_v)
-            uvs.append(uv)
+            charts.append(chart)
             normals.append(n)
             labels.append(np.ones(len(f), np.int32))
             n_leaves = len(leaf[0])
@@ -586,8 +605,8 @@ class Trees(Generator):
         scale = p["height"] / max(hi - lo, 1e-9)
         shift = np.array([0.0, -lo, 0.0])
         v = (v + shift) * scale
-        mesh = Mesh(v, f, np.concatenate(normals), corners_from_vertices(f, np.concatenate(uvs)), np.concatenate(labels),
-                    self.part_names)
+        labels = np.concatenate(labels)
+        mesh = Mesh(v, f, np.concatenate(normals), _uv(charts, labels) if uv else None, labels, self.part_names)
         gp, gr, ge, gl = graph_arrays(stems)
         graph = BranchGraph((gp + shift) * scale, gr * scale, ge, gl, n_leaves)
         return mesh, graph
@@ -598,4 +617,4 @@ class Trees(Generator):
 
     def branch_graph(self, x: np.ndarray, lod: int = 0) -> BranchGraph:
         """The branch graph alone (its node count does not depend on ``lod``)."""
-        return self.generate(x, lod)[1]
+        return self.generate(x, lod, uv=False)[1]

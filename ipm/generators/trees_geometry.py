@@ -136,7 +136,7 @@ def curve_per_segment(res: int, curve: float, back: float) -> np.ndarray:
 def tube_mesh(st: Stems, n_ring: int):
     """Closed tubes along every stem: rings at the samples from m0 on, flat caps at both ends.
 
-    Returns vertices, faces, UVs (around, along) and normals (radial on rings, axial at caps).
+    Returns vertices, faces, charts (``_tube_charts``) and normals (radial on rings, axial at caps).
     """
     M1 = st.rad.shape[1]
     M = M1 - 1
@@ -169,11 +169,48 @@ def tube_mesh(st: Stems, n_ring: int):
     L0 = base[li][:, None]
     cap_s = np.stack([np.repeat(cs, n_ring), (F0 + k1).ravel(), (F0 + kk).ravel()], -1)
     cap_e = np.stack([np.repeat(ce, n_ring), (L0 + kk).ravel(), (L0 + k1).ravel()], -1)
-    v = mi / M
-    uv = [np.stack([np.tile(kk / n_ring, R), np.repeat(v, n_ring)], -1),
-          np.stack([np.full(len(fi), 0.5), v[fi]], -1), np.stack([np.full(len(li), 0.5), v[li]], -1)]
     normals = np.concatenate([out.reshape(-1, 3), -T[fi], T[li]])
-    return np.concatenate(verts), np.concatenate([side, cap_s, cap_e]), np.concatenate(uv), normals
+    faces = np.concatenate([side, cap_s, cap_e])
+    return np.concatenate(verts), faces, _tube_charts(st, si, mi, a, fi, li, n_ring), normals
+
+
+def _tube_charts(st: Stems, si, mi, a, fi, li, n_ring: int):
+    """Charts of ``tube_mesh``'s triangles, in its order: each stem's side unrolled (round its mean
+    girth, along its arc length), each cap a disc. Returns the corners in their charts' frames
+    (F, 3, 2), each triangle's chart (F,) and the charts' sizes (C, 2); charts are the stems' sides,
+    then their start caps, then their end caps."""
+    pos, rad = st.pos[si, mi], st.rad[si, mi]
+    stems, first_ring = np.unique(si, return_index=True)
+    step = np.r_[0.0, np.linalg.norm(pos[1:] - pos[:-1], axis=1)]
+    step[first_ring] = 0.0
+    arc = np.cumsum(step)
+    arc -= arc[first_ring][np.searchsorted(stems, si)]
+    stem = np.searchsorted(stems, si)  # each ring's stem, 0..S-1
+    n_s = len(stems)
+    girth = 2 * np.pi * np.maximum(np.bincount(stem, rad) / np.bincount(stem), 1e-4)
+    length = np.maximum(np.maximum.reduceat(arc, first_ring), 1e-4)
+    k = np.arange(n_ring)
+    u = (k / n_ring)[None] * girth[stem[a]][:, None]
+    u1 = ((k + 1) / n_ring)[None] * girth[stem[a]][:, None]
+    v0 = np.broadcast_to(arc[a][:, None], u.shape)
+    v1 = np.broadcast_to(arc[a + 1][:, None], u.shape)
+    # the side's two triangle kinds, (A, B1, B) then (A, A1, B1), as tube_mesh lays them out
+    side = [np.stack([np.stack([u, v0], -1), np.stack([u1, v1], -1), np.stack([u, v1], -1)], -2),
+            np.stack([np.stack([u, v0], -1), np.stack([u1, v0], -1), np.stack([u1, v1], -1)], -2)]
+    local = [x.reshape(-1, 3, 2) for x in side]
+    chart = [np.repeat(stem[a], n_ring)] * 2
+    theta = 2 * np.pi * k / n_ring
+    for rings, order, offset in ((fi, (1, 0), n_s), (li, (0, 1), 2 * n_s)):
+        r = np.maximum(rad[rings], 1e-4)[:, None]
+        rim = np.stack([r * (1 + np.cos(theta)), r * (1 + np.sin(theta))], -1)  # (caps, n_ring, 2)
+        nxt = np.roll(rim, -1, axis=1)
+        centre = np.broadcast_to(np.concatenate([r, r], 1)[:, None], rim.shape)
+        pair = (nxt, rim) if order == (1, 0) else (rim, nxt)
+        local.append(np.stack([centre, *pair], -2).reshape(-1, 3, 2))
+        chart.append(np.repeat(offset + stem[rings], n_ring))
+    sizes = np.concatenate([np.stack([girth, length], -1),
+                            *(np.repeat(2 * np.maximum(rad[rings], 1e-4)[:, None], 2, 1) for rings in (fi, li))])
+    return np.concatenate(local), np.concatenate(chart), sizes
 
 
 def leaf_mesh(base, along, across, nrm, shape: int):
@@ -194,9 +231,18 @@ def leaf_mesh(base, along, across, nrm, shape: int):
     front = np.stack([np.broadcast_to(o + nr, (L, nr)), o + i, o + i1], -1)
     back = np.stack([np.broadcast_to(o + nr + 1, (L, nr)), o + i1, o + i], -1)
     faces = np.concatenate([front, back], 1).reshape(-1, 3)
-    uv1 = np.concatenate([np.stack([rim[:, 0], rim[:, 1] + 0.5], -1), [[rim[:, 0].mean(), 0.5]] * 2])
     n = unit(np.concatenate([unit(pts - centre[:, None]), nrm[:, None], -nrm[:, None]], 1)).reshape(-1, 3)
-    return verts, faces, np.tile(uv1, (L, 1)), n
+    # charts: each leaf's upper and lower side its outline at its size (leaves 0..L-1 upper, L..2L-1 lower)
+    extent = np.stack([np.linalg.norm(along, axis=1), np.linalg.norm(across, axis=1)], -1)  # (L, 2)
+    flat = (rim - rim.min(0))[None] * extent[:, None]  # (L, nr, 2)
+    middle = flat.mean(1, keepdims=True)
+    upper = np.stack([np.broadcast_to(middle, flat.shape), flat, np.roll(flat, -1, axis=1)], -2)
+    lower = np.stack([np.broadcast_to(middle, flat.shape), np.roll(flat, -1, axis=1), flat], -2)
+    local = np.concatenate([upper, lower], 1).reshape(-1, 3, 2)
+    chart = np.concatenate([np.repeat(np.arange(L), nr)[:, None].reshape(L, nr), L + np.repeat(np.arange(L), nr)
+                            .reshape(L, nr)], 1).ravel()
+    sizes = np.tile(np.maximum(np.ptp(rim, 0)[None] * extent, 1e-4), (2, 1))
+    return verts, faces, (local, chart, sizes), n
 
 
 def graph_arrays(stems: list[Stems]):

@@ -67,7 +67,7 @@ class Objective:
         """Impostor labels (n_targets, impostor, impostor) of genome ``g`` as placed, its
         silhouettes turned (n_targets, turns - 1, impostor, impostor) and its graph size."""
         x = self.genome.params(g)
-        mesh, n_graph = self.genome.object_mesh(x, self.options.lod)
+        mesh, n_graph = self.genome.object_mesh(x, self.options.lod, uv=False)
         v = self.genome.place(g, mesh)[0]
         return *cast_turned(v, mesh, self._rays, self.genome.pose(g)[1]), n_graph
 

@@ -118,10 +118,11 @@ class Genome:
         height = self.anchor_h * math.exp(lo + p[3] * (hi - lo))
         return yaw, base, height
 
-    def object_mesh(self, x: np.ndarray, lod: int):
-        """The generator's mesh in its own frame and, for plants, its branch-graph size."""
+    def object_mesh(self, x: np.ndarray, lod: int, uv: bool = True):
+        """The generator's mesh in its own frame and, for plants, its branch-graph size; ``uv=False``
+        may leave a plant's texture charts out."""
         if self.generator.plant:
-            mesh, graph = self.generator.generate(x, lod)
+            mesh, graph = self.generator.generate(x, lod, uv)
             return mesh, graph.n_vertices
         return self.generator.mesh(x, lod), None
 

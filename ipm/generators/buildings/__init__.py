@@ -32,6 +32,7 @@ from ipm.generators.base import GENERATORS, Generator, Topology
 from ipm.generators.buildings.facades import FACADES, facade_boxes
 from ipm.generators.buildings.footprint import core_solids, cornice_and_balconies, wing_solids
 from ipm.generators.buildings.roofs import roof_solids
+from ipm.generators.buildings.charts import charts
 from ipm.generators.buildings.solids import TEMPLATES, Solids
 from ipm.generators.buildings.table import (BALCONIES, DISCRETE, DOOR, FLAT, FRAMES, GABLE, GAMBREL, HALF_HIP, HIP,
                                             L_PLAN, MANSARD, PARTS, RECTANGLE, ROOF, ROOF_KINDS, ROOF_WEIGHTS,
@@ -334,6 +335,13 @@ class Buildings(Generator):
                 jnp.repeat(present.astype(bool), per_solid, total_repeat_length=total))
 
     @lru_cache(maxsize=None)
+    def _typical(self):
+        """The median of 64 of the sampler's buildings (a fixed draw), parameter by parameter: the
+        continuous values at which the texture charts take their shapes."""
+        rng = np.random.default_rng(0)
+        return np.median([self.sample(rng) for _ in range(64)], 0)
+
+    @lru_cache(maxsize=None)
     def topology(self, key, lod):
         x = self.spec.default.copy()
         for name, v in zip(DISCRETE, key):
@@ -342,10 +350,10 @@ class Buildings(Generator):
         faces, per_solid = self._faces(lod)
         keep = np.repeat(present.astype(bool), per_solid)
         faces, labels = faces[keep], np.repeat(parts, per_solid)[keep]
-        v = np.asarray(self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32)), np.float64)
-        fh = float(x[self.spec.index["floor_height"]])
-        uv = np.stack([(v[:, 0] + v[:, 2]) / fh, v[:, 1] / fh], 1)  # one texture tile per storey
-        return Topology(faces, labels.astype(np.int32), uv[faces], len(v))
+        ref = np.where(self.spec.discrete, x, self._typical())  # the charts' shapes: a typical building's faces
+        at = np.asarray(self.positions_fn(key, lod)(jnp.asarray(ref, jnp.float32)), np.float64)
+        uv = charts(self._layout_fn(lod)[1], at, parts, present.astype(bool), len(PARTS))
+        return Topology(faces, labels.astype(np.int32), uv, len(at))
 
     def positions_fn(self, key, lod):
         """One function for every topology at ``lod`` (the solids at their largest counts; the
