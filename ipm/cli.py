@@ -113,6 +113,8 @@ def _parser() -> argparse.ArgumentParser:
                    ".json: a building's CityJSON 2.0 city model, LoD 2.2)")
     g.add_argument("--format", default=None, choices=("glb", "ply", "cityjson"), help="default: from --out's suffix")
     g.add_argument("--world", action="store_true", help="apply the reconstruction's pose (default: upright at the origin)")
+    g.add_argument("--textures", default=None, help="a reconstruction's textures/ folder (PART.png on the generator's "
+                   "UVs): the glb wears them at any level of detail and for edited parameters")
 
     for sp in (r, b):
         sp.add_argument("--up", default=None,
@@ -251,7 +253,8 @@ def _run(args) -> int:
     elif args.command == "generate":
         from ipm.generate import generate
 
-        info = generate(args.generator, args.params, args.lod, args.out, world=args.world, fmt=args.format)
+        info = generate(args.generator, args.params, args.lod, args.out, world=args.world, fmt=args.format,
+                        textures=args.textures)
         parts = ", ".join(f"{k} {v}" for k, v in info["parts"].items())
         size = f"{info['triangles']} triangles" if "triangles" in info else f"{info['surfaces']} surfaces"
         print(f"{args.out}: {size} ({parts})")

@@ -65,9 +65,12 @@ FORMATS = {".glb": "glb", ".ply": "ply", ".json": "cityjson"}
 
 
 def generate(generator: str, params: str | Path, lod: int, out: str | Path, world: bool = False,
-             fmt: str | None = None) -> dict:
+             fmt: str | None = None, textures: str | Path | None = None) -> dict:
     """Write the mesh of ``params`` at ``lod`` to ``out`` (atomically) as ``fmt`` (glb, ply, or
-    cityjson: a building's LoD 2.2 city model; default: from the suffix); returns a summary."""
+    cityjson: a building's LoD 2.2 city model; default: from the suffix), a glb wearing the part
+    textures of the folder ``textures`` (a reconstruction's textures/); returns a summary."""
+    from ipm.texture import read_textures
+
     from ipm.generators import get_generator
     from ipm.io import save_glb, save_ply
 
@@ -79,6 +82,9 @@ def generate(generator: str, params: str | Path, lod: int, out: str | Path, worl
     if fmt not in FORMATS.values() or FORMATS.get(suffix) != fmt:
         raise UserError(f"--out must end in .glb, .ply or .json (cityjson), matching --format; got {out}")
     x, pose = read_params(params, generator)
+    if textures is not None and fmt != "glb":
+        raise UserError("--textures go into a glb: --out must end in .glb")
+    images = read_textures(textures, gen.part_names) if textures is not None else None
     if fmt == "cityjson":
         return _city_json(gen, x, lod, out, world)
     mesh = gen.mesh(x, lod)
@@ -91,7 +97,7 @@ def generate(generator: str, params: str | Path, lod: int, out: str | Path, worl
     if fmt == "glb":
         save_glb(out, vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv, normals=normals,
                  extras={"generator": generator, "lod": lod, "params": gen.spec.as_dict(x),
-                         **({"pose": pose} if world else {})})
+                         **({"pose": pose} if world else {})}, textures=images)
     else:
         save_ply(out, vertices, mesh.faces, mesh.labels)
     parts = {name: int(np.sum(mesh.labels == k)) for k, name in enumerate(mesh.part_names)}

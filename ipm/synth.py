@@ -204,7 +204,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
                 save_labels(tmp / "semantic" / f"{i:03d}.png", semantic[i], top)
                 frames[-1]["semantic_path"] = f"semantic/{i:03d}.png"
         write_views(tmp / "transforms.json", fov, res, res, frames, scheme[0] if scheme else None,
-                    lens if layout == "photo" else None)
+                    lens if layout == "photo" else None, None if layout == "photo" else "reference")
         _write_reference(tmp, spec, v, f, labels)
 
 

@@ -195,6 +195,12 @@ class Generator:
         means nothing for it). Default: False."""
         return False
 
+    def texture_symmetry(self, part: int, res: int) -> np.ndarray | None:
+        """Texels of part ``part``'s ``res`` square texture grouped so that a group's texels look
+        alike (``ipm.texture.fill`` fills an unseen texel from its group), -1 for none; None where
+        the generator knows no symmetry. Default: None."""
+        return None
+
     def seen_counts(self, yaw: float, to_cameras) -> list[str]:
         """The count parameters (:attr:`counts`) that views from the world directions
         ``to_cameras`` (k, 3) show of the object turned by ``yaw`` about +y: all but the

@@ -132,6 +132,20 @@ class Dishes(Generator):
         """A body of revolution without a handle."""
         return not self.topology_key(x)[0]
 
+    def texture_symmetry(self, part: int, res: int) -> np.ndarray:
+        """A part's texels grouped by the revolution (``ipm.texture.fill``): a row of the unrolled
+        body or tube (one height round the axis), a ring of a bottom or cap disc."""
+        (u0, v0, u1, v1), discs = _atlases()[part]
+        v, u = np.meshgrid(1 - (np.arange(res) + 0.5) / res, (np.arange(res) + 0.5) / res, indexing="ij")
+        groups = np.full((res, res), -1)
+        strip = (u >= u0) & (u <= u1) & (v >= v0) & (v <= v1)
+        groups[strip] = np.round(v[strip] * res).astype(int)
+        for k, (cu, cv, r) in enumerate(discs):
+            radius = np.hypot(u - cu, v - cv)
+            disc = radius <= r
+            groups[disc] = res * (k + 1) + np.round(radius[disc] * res).astype(int)
+        return groups
+
     def sample(self, rng, handle: bool | None = None):
         """A random plausible vessel (the test split's sampler), not a preset: a smooth profile from
         a base and a rim radius (0.15-0.5 and 0.15-0.75 object units) joined by a power curve with a

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from PIL import Image
 
 from ipm.errors import UserError
 from ipm.io.atomic import atomic_path
@@ -55,9 +56,11 @@ PART_COLOURS = ((0.80, 0.78, 0.74), (0.35, 0.55, 0.75), (0.45, 0.33, 0.22), (0.6
 
 def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
              part_names: tuple[str, ...], uv: np.ndarray | None = None, normals: np.ndarray | None = None,
-             extras: dict | None = None) -> None:
+             extras: dict | None = None, textures: dict | None = None) -> None:
     """Write a GLB atomically: one named node and one named material per part present (e.g.
-    ``body``, ``handle``), vertex normals if given, ``extras`` (JSON) in the scene's extras."""
+    ``body``, ``handle``), texture coordinates (``uv`` per triangle corner, (F, 3, 2)) and vertex
+    normals if given, a part's ``textures[k]`` (an sRGB image, (res, res, 3) uint8) as its
+    material's ``baseColorTexture`` (embedded PNG), ``extras`` (JSON) in the scene's extras."""
     vertices, faces, labels = np.asarray(vertices), np.asarray(faces), np.asarray(labels)
     scene = trimesh.Scene()
     for k, name in enumerate(part_names):
@@ -69,9 +72,10 @@ def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, l
             uv_part = None
         else:
             used, inv, uv_part = weld(sel, np.asarray(uv)[labels == k])
-        colour = [*PART_COLOURS[k % len(PART_COLOURS)], 1.0]
+        image = None if textures is None or k not in textures else Image.fromarray(np.asarray(textures[k], np.uint8))
+        colour = [1.0, 1.0, 1.0, 1.0] if image is not None else [*PART_COLOURS[k % len(PART_COLOURS)], 1.0]
         material = trimesh.visual.material.PBRMaterial(name=name, baseColorFactor=colour, metallicFactor=0.0,
-                                                       roughnessFactor=0.8)
+                                                       roughnessFactor=0.8, baseColorTexture=image)
         visual = trimesh.visual.TextureVisuals(uv=uv_part, material=material)
         part = trimesh.Trimesh(vertices[used], inv.reshape(-1, 3), visual=visual, process=False,
                                vertex_normals=None if normals is None else np.asarray(normals)[used])

@@ -63,6 +63,9 @@ class Views:
     """The capture's camera (``ipm.io.lens.Lens``) when it is not the centred square-pixel pinhole:
     masks and label images were resampled onto its pinhole twin (``fov_x``); an image read later
     from ``frames`` goes through ``lens.resample`` too. None for a pinhole capture."""
+    lighting: str | None = None
+    """The light the colour images were taken under, where the file says (``reference``: synth's
+    sky and sun of ``ipm.render.textured``); None for a capture's own, unknown light."""
     posed: bool = True
     """Whether the views' poses are known. False for a photo without one: as read, ``c2w`` the
     identity and no ``camera`` (``ipm.capture.open_views`` gives it its unknown camera)."""
@@ -280,8 +283,33 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
             raise UserError(f"{path}: semantic_labels must map label names to integers") from None
         sem_arr = np.stack([load_labels(path.parent / fr["semantic_path"], width, height, top) for fr in frames])
         sem_arr = sem_arr if lens is None else lens.resample(sem_arr, nearest=True)
+    lighting = data.get("lighting")
+    if lighting is not None and lighting not in LIGHTINGS:
+        raise UserError(f"{path}: unknown lighting {lighting!r} (known: {', '.join(LIGHTINGS)})")
     return Views(fov_x, width, height, np.stack(c2w), mask_arr, frames, path.parent,
-                 data.get("semantic_labels"), sem_arr, lens=lens, posed=posed)
+                 data.get("semantic_labels"), sem_arr, lens=lens, lighting=lighting, posed=posed)
+
+
+def load_photos(views: Views) -> np.ndarray | None:
+    """The views' colour images as linear RGB (n, height, width, 3) float in [0, 1], as the pinhole
+    twin sees them where the capture has a lens; None where a frame has no colour image (a mask
+    alone)."""
+    if not views.frames or any("file_path" not in fr for fr in views.frames):
+        return None
+    images = []
+    for fr in views.frames:
+        path = Path(fr["file_path"]) if Path(fr["file_path"]).is_absolute() else views.root / fr["file_path"]
+        try:
+            with Image.open(path) as im:
+                rgb = np.asarray(im.convert("RGB"), np.float64) / 255.0
+        except (OSError, ValueError) as exc:
+            raise UserError(f"cannot read colour image {path}: {exc}") from None
+        if rgb.shape[:2] != (views.height, views.width) and views.lens is None:
+            raise UserError(f"colour image {path} is {rgb.shape[1]}x{rgb.shape[0]}, expected "
+                            f"{views.width}x{views.height}")
+        images.append(linear_from_srgb(rgb))
+    images = np.stack(images)
+    return images if views.lens is None else views.lens.resample(images)
 
 
 def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
@@ -289,6 +317,11 @@ def save_mask(path: str | os.PathLike, mask: np.ndarray) -> None:
     img = Image.fromarray(((np.asarray(mask) > 0.5) * 255).astype(np.uint8))
     with atomic_path(path) as tmp:
         img.save(tmp, format="PNG")
+
+
+def linear_from_srgb(x: np.ndarray) -> np.ndarray:
+    """sRGB values in [0, 1] as linear ones."""
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
 def srgb_bytes(rgb: np.ndarray) -> np.ndarray:
@@ -307,6 +340,12 @@ def jpeg_roundtrip(rgb8: np.ndarray, quality: int) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"))
 
 
+def save_texture(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Write an sRGB image (h, w, 3) uint8 as a PNG, atomically."""
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.asarray(image, np.uint8)).save(tmp, format="PNG")
+
+
 def save_rgb(path: str | os.PathLike, rgb: np.ndarray, quality: int | None = None) -> None:
     """Write a linear float RGB image in [0, 1] as an sRGB 8-bit PNG (a JPEG of ``quality``
     where one is given), atomically."""
@@ -315,8 +354,13 @@ def save_rgb(path: str | os.PathLike, rgb: np.ndarray, quality: int | None = Non
         img.save(tmp, format="PNG") if quality is None else img.save(tmp, format="JPEG", quality=int(quality))
 
 
+LIGHTINGS = ("reference",)
+"""The lights a transforms.json may name (``lighting``): ``reference``, synth's sky and sun."""
+
+
 def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,
-                frames: list[dict], semantic_labels: dict | None = None, lens: Lens | None = None) -> None:
+                frames: list[dict], semantic_labels: dict | None = None, lens: Lens | None = None,
+                lighting: str | None = None) -> None:
     """Write a transforms.json; ``frames`` hold paths and (4, 4) ``transform_matrix`` arrays.
     The camera in both focal forms: ``camera_angle_x`` (instant-ngp, NeRF-synthetic) and
     ``fl_x``/``fl_y``/``cx``/``cy`` (nerfstudio's parser needs ``fl_x``); with ``lens`` (an
@@ -332,6 +376,8 @@ def write_views(path: str | os.PathLike, fov_x: float, width: int, height: int,
         data.update(fl_x=fx, fl_y=fy, cx=cx, cy=cy, camera_model="OPENCV", k1=k1, k2=k2, p1=p1, p2=p2)
     if semantic_labels:
         data["semantic_labels"] = semantic_labels
+    if lighting is not None:
+        data["lighting"] = lighting
     data["frames"] = [
         {**fr, "transform_matrix": np.asarray(fr["transform_matrix"]).tolist()} for fr in frames
     ]

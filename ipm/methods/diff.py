@@ -87,13 +87,36 @@ def fit_fov_grid(views: Views, generator: str, prof: DiffProfile, seed: int,
 
 
 def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFrame, prof: DiffProfile,
-           info: dict, seconds: float, place: np.ndarray | None = None) -> dict:
+           info: dict, seconds: float, place: np.ndarray | None = None, views: Views | None = None) -> dict:
     """The fit's result folder (``ipm.methods.results``): its mesh at the output level of detail,
-    moved first by ``place`` (4 x 4, a similarity) where given, and ``info`` with the decoded ``z``."""
+    moved first by ``place`` (4 x 4, a similarity) where given, and ``info`` with the decoded ``z``;
+    where ``views`` (in the mesh's world) have colour images, the mesh painted from them
+    (``ipm.texture``; its seconds in the fit's and apart as ``texture_seconds``)."""
     mesh = placed_mesh(problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod)), place)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
             "settings": prof.as_dict(), **start_record(trace, prof), **info}
-    return write_result(out, mesh, info, {"seconds": seconds}, trace)
+    t0 = time.perf_counter()
+    textures = painted(problem.generator, mesh, views) if views is not None else None
+    timing = {"seconds": seconds + time.perf_counter() - t0}
+    if textures is not None:
+        textures, seen = textures
+        info["texture"] = {"lighting": views.lighting, "seen": {mesh.part_names[k]: round(s, 4) for k, s in seen.items()}}
+        timing["texture_seconds"] = round(time.perf_counter() - t0, 2)
+    return write_result(out, mesh, info, timing, trace, textures=textures)
+
+
+def painted(generator, mesh, views: Views):
+    """``ipm.texture.paint`` of ``mesh`` from the views' colour images and masks, or None where
+    they have none or their camera is an estimate."""
+    from ipm.io.views import load_photos
+    from ipm.texture import paint
+
+    if not views.posed or views.camera is not None:
+        return None
+    photos = load_photos(views)
+    if photos is None or views.masks is None:
+        return None
+    return paint(generator, mesh, photos, views.masks, views.c2w, views.fov_x, views.lighting)
 
 
 def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:
@@ -125,7 +148,7 @@ def run_diff(views_path: str | Path, out: str | Path, generator: str = "dishes",
     views = open_views(views_path).first(n_input_views)
     problem, z, trace, prof = fit(views, generator, profile, seed, progress, prepared=prepared, **overrides)
     info = {"method": "diff", "profile": profile, "seed": seed, **views.input_frame()}
-    return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0)
+    return write_fit(out, problem, z, trace, prof, info, time.perf_counter() - t0, views=views)
 
 
 def run_photo(views_path: str | Path, out: str | Path, generator: str = "dishes", profile: str = "default",

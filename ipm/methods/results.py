@@ -14,6 +14,7 @@ import pandas as pd
 
 from ipm.generators.base import Mesh
 from ipm.io import atomic_dir, save_glb, save_ply, write_json
+from ipm.io.views import save_texture, srgb_bytes
 
 GLB_EXTRAS = ("generator", "params", "pose")
 """Keys of params.json that the glTF file carries too (its ``extras``), where present."""
@@ -21,13 +22,16 @@ GLB_EXTRAS = ("generator", "params", "pose")
 
 def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], info: dict, timing: dict,
                  trace: pd.DataFrame | None = None, info_file: str = "params.json",
-                 extra_files: dict[str, Callable[[Path], None]] | None = None, failed: bool = False) -> dict:
+                 extra_files: dict[str, Callable[[Path], None]] | None = None, failed: bool = False,
+                 textures: dict[int, np.ndarray] | None = None) -> dict:
     """``mesh`` (a generator's part-labelled :class:`~ipm.generators.base.Mesh`, or a baseline's
     ``(vertices, faces)``), ``info`` as ``info_file``, ``trace`` as trace.csv, ``timing`` as
     timing.json (``seconds`` first, then the trace's length as ``evaluations``, then the rest) and
-    each of ``extra_files`` (name -> writer of that path) in ``out``, atomically. A mesh that is
-    empty or not finite is a ``FloatingPointError``, unless the run ``failed`` (an empty mesh
-    recorded with its reason). Returns ``info``."""
+    each of ``extra_files`` (name -> writer of that path) in ``out``, atomically; a labelled mesh's
+    ``textures`` (part index -> linear albedo (res, res, 3), ``ipm.texture``) go into mesh.glb and
+    beside it as textures/PART.png. A mesh that is empty or not finite is a
+    ``FloatingPointError``, unless the run ``failed`` (an empty mesh recorded with its reason).
+    Returns ``info``."""
     labelled = isinstance(mesh, Mesh)
     vertices, faces = (mesh.vertices, mesh.faces) if labelled else mesh
     if not failed and (len(faces) == 0 or not np.all(np.isfinite(vertices))):
@@ -37,8 +41,11 @@ def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], in
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", vertices, faces, mesh.labels if labelled else None)
         if labelled:
+            images = {k: srgb_bytes(t) for k, t in (textures or {}).items()}
             save_glb(tmp / "mesh.glb", mesh.vertices, mesh.faces, mesh.labels, mesh.part_names, mesh.uv,
-                     normals=mesh.normals, extras={k: info[k] for k in GLB_EXTRAS if k in info})
+                     normals=mesh.normals, extras={k: info[k] for k in GLB_EXTRAS if k in info}, textures=images)
+            for k, image in images.items():
+                save_texture(tmp / TEXTURES / f"{mesh.part_names[k]}.png", image)
         write_json(tmp / info_file, info)
         if labelled and not failed and "generator" in info and "params" in info:
             _write_city_model(tmp, info)
@@ -50,6 +57,8 @@ def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], in
     return info
 
 
+TEXTURES = "textures"
+"""A textured result's folder of part textures (PART.png, sRGB)."""
 CITY_MODEL = "building.city.json"
 
 

@@ -41,12 +41,13 @@ def photo_sheet(photo: str, mesh: str, camera: dict, out_png: str, height: int =
     240 degrees about its vertical axis."""
     from PIL import Image
 
+    from ipm.io.views import linear_from_srgb
     from ipm.metrics.silhouette import raycasting_scene
 
     img = Image.open(photo).convert("RGB")
     width = max(8, int(round(img.width * height / img.height)))
     rgb = np.asarray(img.resize((width, height), Image.BILINEAR), np.float64) / 255.0
-    rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)  # sRGB -> linear
+    rgb = linear_from_srgb(rgb)
     m = load_mesh(mesh)
     c2w, fov = np.asarray(camera["transform_matrix"]), np.radians(camera["fov_x_deg"])
     centre = m.bounds.mean(0)

@@ -64,13 +64,24 @@ def render_parts(vertices, faces, labels, c2w: np.ndarray, fov_x: float, width: 
 
 def _render_lit(mesh, v, f, c2w, fov_x, width, height, spp):
     """Set the mesh buffers and render it under the reference lighting from each camera."""
+    _set_buffers(mesh, v, f)
+    return _render_scene({"object": mesh}, c2w, fov_x, width, height, spp)
+
+
+def _set_buffers(mesh, v, f) -> None:
     import mitsuba as mi
 
     mp = mi.traverse(mesh)
-    mp["vertex_positions"] = mi.Float(v.astype(np.float32).ravel())
-    mp["faces"] = mi.UInt32(f.astype(np.uint32).ravel())
+    mp["vertex_positions"] = mi.Float(np.asarray(v, np.float32).ravel())
+    mp["faces"] = mi.UInt32(np.asarray(f, np.uint32).ravel())
     mp.update()
-    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 3}, "object": mesh,
+
+
+def _render_scene(shapes: dict, c2w, fov_x, width, height, spp):
+    """Render ``shapes`` (name -> Mitsuba shape) under the reference lighting from each camera."""
+    import mitsuba as mi
+
+    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 3}, **shapes,
              "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.35}},
              "sun": {"type": "directional", "direction": [-0.4, -1.0, -0.3],
                      "irradiance": {"type": "rgb", "value": 2.5}}}
@@ -78,6 +89,31 @@ def _render_lit(mesh, v, f, c2w, fov_x, width, height, spp):
         scene[f"sensor_{i:03d}"] = sensor_dict(m, fov_x, width, height)
     scene = mi.load_dict(scene)
     return np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=i)) for i in range(len(c2w))])
+
+
+def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray, fov_x: float, width: int,
+                   height: int, spp: int = 64) -> np.ndarray:
+    """Linear RGB renders (n, height, width, 3) under the reference lighting of a mesh whose part
+    k wears ``textures[k]`` (res, res, 3) linear albedo on its UVs (``uv`` (F, 3, 2)); a part
+    without one is white (the renders are then its shading). A texture is an image as glTF reads
+    one (its first row at v = 1); Mitsuba's bitmap puts its first row at v = 0, so it gets it
+    upside down."""
+    import mitsuba as mi
+
+    faces, labels = np.asarray(faces), np.asarray(labels)
+    shapes = {}
+    for k in np.unique(labels):
+        sel = labels == k
+        v, f, t = unweld(np.asarray(vertices), faces[sel], np.asarray(uv)[sel])
+        texture = textures.get(int(k))
+        props = _bsdf_props(texture[::-1]) if texture is not None else mi.Properties()
+        if texture is None:
+            props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": 1.0}})
+        mesh = mi.Mesh(f"part_{k}", len(v), len(f), has_vertex_texcoords=True, props=props)
+        mi.traverse(mesh)["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
+        _set_buffers(mesh, v, f)
+        shapes[f"part_{k}"] = mesh
+    return _render_scene(shapes, c2w, fov_x, width, height, spp)
 
 
 def _bsdf_props(texture: np.ndarray):

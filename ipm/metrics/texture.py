@@ -1,0 +1,88 @@
+"""Appearance scores of a textured result (``docs/design``, "The metric"): the result rendered by
+Mitsuba under the reference lighting against the reference's colour views, masked PSNR and SSIM
+(scikit-image) in sRGB over the reference's object pixels, on the input views and on the views of
+the half of the sphere the input sees and of the half it does not."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ipm.errors import UserError
+
+SIDES = ("input", "seen", "unseen")
+"""Where a view looks from: an input view; the half of the sphere round the object that the
+inputs' mean direction points into; the other half."""
+
+
+def sides(c2w: np.ndarray, centre: np.ndarray, n_input: int) -> list[str]:
+    """Each view's side (:data:`SIDES`): the first ``n_input`` are the inputs; another view is
+    ``seen`` when its direction from ``centre`` is within 90 degrees of the inputs' mean one."""
+    to_cam = c2w[:, :3, 3] - centre
+    to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
+    mean = to_cam[:n_input].mean(0)
+    return ["input" if i < n_input else "seen" if to_cam[i] @ mean > 0 else "unseen" for i in range(len(c2w))]
+
+
+def masked_scores(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> dict:
+    """PSNR (dB) and SSIM of ``image`` against ``reference`` (h, w, 3) sRGB in [0, 1] over ``mask``'s
+    pixels (SSIM: scikit-image's map on the whole image, averaged over them)."""
+    from skimage.metrics import structural_similarity
+
+    m = np.asarray(mask) > 0.5
+    if not m.any():
+        raise UserError("an empty reference mask has no pixels to score")
+    mse = float(np.mean((image[m] - reference[m]) ** 2))
+    psnr = float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
+    _, ssim_map = structural_similarity(image, reference, channel_axis=-1, data_range=1.0, full=True)
+    return {"psnr": psnr, "ssim": float(ssim_map[m].mean())}
+
+
+def read_textured_glb(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """A textured glb's vertices, faces, part labels (by node order), per-corner UVs and part
+    textures {label: linear albedo (h, w, 3)} (``UserError`` where a part has no texture)."""
+    import trimesh
+
+    from ipm.io.views import linear_from_srgb
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"textured mesh not found: {path}")
+    scene = trimesh.load(path, force="scene")
+    vertices, faces, labels, uv, textures, offset = [], [], [], [], {}, 0
+    for k, (name, part) in enumerate(scene.geometry.items()):
+        image = getattr(part.visual.material, "baseColorTexture", None)
+        if getattr(part.visual, "uv", None) is None or image is None:
+            raise UserError(f"{path}: part {name!r} has no texture")
+        vertices.append(np.asarray(part.vertices))
+        faces.append(np.asarray(part.faces) + offset)
+        labels.append(np.full(len(part.faces), k))
+        uv.append(np.asarray(part.visual.uv)[np.asarray(part.faces)])
+        textures[k] = linear_from_srgb(np.asarray(image.convert("RGB"), np.float64) / 255.0)
+        offset += len(part.vertices)
+    return np.concatenate(vertices), np.concatenate(faces), np.concatenate(labels), np.concatenate(uv), textures
+
+
+def score_result(mesh_glb: str | Path, views_path: str | Path, n_input: int, spp: int = 64) -> dict:
+    """A textured result (its mesh.glb, world frame) scored against every view of ``views_path``
+    (the reference's colour views under the reference lighting): per view its side and scores,
+    and the mean per side."""
+    from ipm.io.views import load_photos, load_views, srgb_bytes
+    from ipm.render.textured import render_painted
+
+    vertices, faces, labels, uv, textures = read_textured_glb(mesh_glb)
+    views = load_views(views_path)
+    if views.lighting != "reference":
+        raise UserError(f"{views_path}: scores need colour views under the reference lighting")
+    reference = load_photos(views)
+    renders = render_painted(vertices, faces, labels, uv, textures, views.c2w, views.fov_x, views.width,
+                             views.height, spp)
+    side = sides(views.c2w, 0.5 * (vertices.min(0) + vertices.max(0)), n_input)
+    per_view = []
+    for i in range(len(views)):
+        got, want = srgb_bytes(renders[i]) / 255.0, srgb_bytes(reference[i]) / 255.0
+        per_view.append({"view": i, "side": side[i], **masked_scores(got, want, views.masks[i])})
+    means = {s: {k: float(np.mean([v[k] for v in per_view if v["side"] == s])) for k in ("psnr", "ssim")}
+             for s in SIDES if any(v["side"] == s for v in per_view)}
+    return {"views": per_view, "sides": means}

@@ -1,0 +1,227 @@
+"""The texture stage: a result's parts painted from the input photographs on the generator's UVs
+(``docs/design``, "The texture stage").
+
+1. Projection: each texel's surface point takes the colour of every input view that sees it (a
+   ray from the camera meets the fitted mesh there first), divided by the shading the reference
+   lighting gives a white mesh at that pixel, so the texture holds albedo; views weigh by how
+   squarely they see the point and how well it is lit.
+2. Fill: a texel no view sees takes the mean of the seen texels of its symmetry group (the
+   generator's ``texture_symmetry``: a dish's rows round its axis), else its part's mean.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ipm.errors import UserError
+
+TEXTURE_RES = 256
+"""Texels across a part's square texture."""
+MIN_SHADING = 0.05
+"""Shading (a white mesh's linear radiance) under which a pixel says too little of the albedo."""
+
+
+@dataclass
+class Texels:
+    """The texels one part's charts cover: their rows and columns, and the surface point, facet
+    normal and triangle of each."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    triangles: np.ndarray
+
+
+def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) -> Texels:
+    """The texel centres of a ``res`` square texture that the triangles' UVs (F, 3, 2) cover (u along
+    the columns, v along the rows from the bottom, as glTF's and Mitsuba's bitmaps are read)."""
+    vertices, faces, uv = np.asarray(vertices, np.float64), np.asarray(faces), np.asarray(uv, np.float64)
+    tri = uv * res - 0.5
+    lo = np.clip(np.ceil(tri.min(1)), 0, res - 1).astype(int)
+    hi = np.clip(np.floor(tri.max(1)), 0, res - 1).astype(int)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    owner = np.full((res, res), -1)
+    weights = np.zeros((res, res, 3))
+    for k in np.flatnonzero(np.abs(det) > 1e-12):
+        xs, ys = np.meshgrid(np.arange(lo[k, 0], hi[k, 0] + 1), np.arange(lo[k, 1], hi[k, 1] + 1))
+        px, py = xs - a[k, 0], ys - a[k, 1]
+        s = (px * (c[k, 1] - a[k, 1]) - py * (c[k, 0] - a[k, 0])) / det[k]
+        t = (py * (b[k, 0] - a[k, 0]) - px * (b[k, 1] - a[k, 1])) / det[k]
+        inside = (s >= -1e-9) & (t >= -1e-9) & (s + t <= 1 + 1e-9)
+        owner[ys[inside], xs[inside]] = k
+        weights[ys[inside], xs[inside]] = np.stack([1 - s[inside] - t[inside], s[inside], t[inside]], -1)
+    v_idx, u_idx = np.nonzero(owner >= 0)
+    k = owner[v_idx, u_idx]
+    corners = vertices[faces[k]]  # (N, 3, 3)
+    points = np.einsum("nc,ncj->nj", weights[v_idx, u_idx], corners)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    return Texels(res - 1 - v_idx, u_idx, points, normal, k)
+
+
+def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``image`` (H, W, ...) at pixel positions ``xy`` (N, 2) (x right, y down, centres at +0.5)."""
+    h, w = image.shape[:2]
+    x = np.clip(xy[:, 0] - 0.5, 0, w - 1)
+    y = np.clip(xy[:, 1] - 0.5, 0, h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0), (y - y0)
+    if image.ndim == 3:
+        fx, fy = fx[:, None], fy[:, None]
+    return ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x1])
+            + fy * ((1 - fx) * image[y1, x0] + fx * image[y1, x1]))
+
+
+def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> np.ndarray:
+    """Whether each point (N, 3) is the first surface a ray from ``origin`` meets (within
+    ``tolerance`` of its distance), by Mitsuba's ray casts on ``scene``."""
+    import mitsuba as mi
+
+    d = points - origin
+    dist = np.linalg.norm(d, axis=1)
+    d /= np.maximum(dist[:, None], 1e-12)
+    o = np.broadcast_to(origin, d.shape).astype(np.float32)
+    ray = mi.Ray3f(mi.Point3f(*(o[:, i] for i in range(3))), mi.Vector3f(*(d[:, i].astype(np.float32)
+                                                                          for i in range(3))))
+    si = scene.ray_intersect(ray)
+    t = np.array(si.t)
+    return np.isfinite(t) & (t >= dist - tolerance)
+
+
+def _mesh_scene(vertices: np.ndarray, faces: np.ndarray):
+    import mitsuba as mi
+
+    mesh = mi.Mesh("fit", len(vertices), len(faces))
+    mp = mi.traverse(mesh)
+    mp["vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
+    mp["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
+    mp.update()
+    return mi.load_dict({"type": "scene", "fit": mesh})
+
+
+def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.ndarray, c2w: np.ndarray,
+            fov_x: float, res: int = TEXTURE_RES, scene=None) -> tuple[np.ndarray, np.ndarray, Texels]:
+    """Part ``part``'s texture (res, res, 3) linear albedo from the photos (n, H, W, 3) linear,
+    their masks and the white mesh's shading in them (n, H, W), and the weight each texel got (0:
+    no view saw it)."""
+    from ipm.render.cameras import project as to_pixels
+
+    sel = mesh.labels == part
+    tx = texels(mesh.vertices, mesh.faces[sel], mesh.uv[sel], res)
+    scene = _mesh_scene(mesh.vertices, mesh.faces) if scene is None else scene
+    size = float(np.linalg.norm(np.ptp(mesh.vertices, 0)))
+    total, weight = np.zeros((len(tx.points), 3)), np.zeros(len(tx.points))
+    h, w = photos.shape[1:3]
+    for photo, mask, shade, cam in zip(photos, masks, shading, c2w):
+        origin = cam[:3, 3]
+        towards = origin - tx.points
+        cos = np.einsum("nj,nj->n", tx.normals, towards) / np.maximum(np.linalg.norm(towards, axis=1), 1e-12)
+        xy = to_pixels(tx.points, cam, fov_x, w, h)
+        inside = (cos > 0.1) & (xy[:, 0] >= 1) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 1) & (xy[:, 1] <= h - 1)
+        idx = np.flatnonzero(inside)
+        if len(idx) == 0:
+            continue
+        idx = idx[visible(scene, origin, tx.points[idx], 2e-3 * size)]
+        core = _bilinear(_eroded(mask), xy[idx]) > 0.99  # a pixel wholly the object's, not its edge
+        idx = idx[core]
+        lit = _bilinear(shade, xy[idx])
+        ok = lit > MIN_SHADING
+        idx, lit = idx[ok], lit[ok]
+        wgt = cos[idx] * lit
+        total[idx] += wgt[:, None] * _bilinear(photo, xy[idx]) / lit[:, None]
+        weight[idx] += wgt
+    texture = np.zeros((res, res, 3))
+    seen = np.zeros((res, res))
+    texture[tx.rows, tx.cols] = total / np.maximum(weight, 1e-12)[:, None]
+    seen[tx.rows, tx.cols] = weight
+    return texture, seen, tx
+
+
+def _eroded(mask: np.ndarray) -> np.ndarray:
+    """The mask less its one-pixel rim (a rim pixel mixes the object with what is behind it)."""
+    from scipy.ndimage import binary_erosion
+
+    return binary_erosion(mask > 0.5, iterations=1).astype(np.float64)
+
+
+def fill(texture: np.ndarray, seen: np.ndarray, covered: tuple[np.ndarray, np.ndarray],
+         groups: np.ndarray | None) -> np.ndarray:
+    """``texture`` with every covered texel (rows, cols) no view saw filled: the mean of its
+    symmetry group's seen texels (``groups`` (res, res) ints, -1 none), else the part's seen mean
+    (mid grey where nothing of the part was seen)."""
+    out = texture.copy()
+    rows, cols = covered
+    known = seen[rows, cols] > 0
+    mean = texture[rows[known], cols[known]].mean(0) if known.any() else np.full(3, 0.5)
+    todo = ~known
+    if groups is not None and known.any():
+        g = groups[rows, cols]
+        labels, inverse = np.unique(g, return_inverse=True)
+        sums = np.zeros((len(labels), 3))
+        counts = np.zeros(len(labels))
+        np.add.at(sums, inverse[known], texture[rows[known], cols[known]])
+        np.add.at(counts, inverse[known], 1)
+        have = (counts[inverse] > 0) & (g >= 0) & todo
+        out[rows[have], cols[have]] = sums[inverse[have]] / counts[inverse[have], None]
+        todo &= ~have
+    out[rows[todo], cols[todo]] = mean
+    return out
+
+
+def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,
+          lighting: str | None = "reference", res: int = TEXTURE_RES, spp: int = 32) -> tuple[dict, dict]:
+    """Every part's texture {part index: (res, res, 3) linear albedo} of a fitted ``mesh`` (world
+    frame, the generator's UVs) from linear photos (n, H, W, 3) with their masks and cameras, and
+    per part the share of its texels some view saw. Under the ``reference`` lighting the photos
+    are divided by its shading; under an unknown one (None) the texture keeps the photos' colours,
+    their light and shade with them."""
+    from ipm.render.textured import render_painted
+
+    if mesh.uv is None:
+        raise UserError("the mesh has no texture coordinates")
+    n, h, w = photos.shape[:3]
+    if masks.shape != (n, h, w):
+        raise UserError(f"masks {masks.shape} do not match the photos {photos.shape[:3]}")
+    if lighting == "reference":
+        shading = render_painted(mesh.vertices, mesh.faces, mesh.labels, mesh.uv, {}, c2w, fov_x, w, h, spp).mean(-1)
+    elif lighting is None:
+        shading = np.ones((n, h, w))
+    else:
+        raise UserError(f"unknown lighting {lighting!r} (known: reference, or none)")
+    scene = _mesh_scene(mesh.vertices, mesh.faces)
+    textures, seen_share = {}, {}
+    for part in np.unique(mesh.labels):
+        part = int(part)
+        texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
+        groups = generator.texture_symmetry(part, res)
+        textures[part] = np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0)
+        seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
+    return textures, seen_share
+
+
+def read_textures(folder, part_names: tuple[str, ...]) -> dict[int, np.ndarray]:
+    """The part textures of a result's textures/ folder: {part index: sRGB image (res, res, 3)
+    uint8} for each part with a PART.png; ``UserError`` where the folder is missing or holds none."""
+    from pathlib import Path
+
+    from PIL import Image
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UserError(f"textures folder not found: {folder}")
+    out = {}
+    for k, name in enumerate(part_names):
+        path = folder / f"{name}.png"
+        if path.is_file():
+            try:
+                with Image.open(path) as im:
+                    out[k] = np.asarray(im.convert("RGB"))
+            except OSError as exc:
+                raise UserError(f"cannot read texture {path}: {exc}") from None
+    if not out:
+        raise UserError(f"{folder} holds no part texture ({', '.join(f'{n}.png' for n in part_names)})")
+    return out
