@@ -230,3 +230,36 @@ def build_table(metrics: list[str], table_csv: str, wide_csv: str, summary_csv: 
         with atomic_path(markdown_path) as tmp:
             tmp.write_text(markdown(summary) + "\n" + markdown(summary, "shape_iou") + "\n")
     return df
+
+
+def texture_table(scores: list[str]) -> pd.DataFrame:
+    """The textured rows' appearance (``texture.json`` of each run, ``ipm.metrics.texture``): per
+    row, case and side, PSNR and SSIM, mean and standard deviation over seeds."""
+    lines = []
+    for path in scores:
+        s = json.loads(Path(path).read_text())
+        for side, v in s["sides"].items():
+            lines.append({"label": s["label"], "split": s["split"], "case": s["case"], "inputs": s["inputs"],
+                          "seed": s["seed"], "side": side, "psnr": v["psnr"], "ssim": v["ssim"]})
+    cols = ["label", "split", "case", "inputs", "side", "n_seeds", "psnr", "psnr_std", "ssim", "ssim_std"]
+    if not lines:
+        return pd.DataFrame(columns=cols)
+    df = pd.DataFrame(lines)
+    g = df.groupby(["label", "split", "case", "inputs", "side"], sort=False)
+    out = g[["psnr", "ssim"]].mean().join(g[["psnr", "ssim"]].std(ddof=1).add_suffix("_std"))
+    return out.join(g.size().rename("n_seeds")).reset_index().reindex(columns=cols)
+
+
+def texture_markdown(table: pd.DataFrame) -> str:
+    """The appearance table as markdown: a line per row and case, PSNR (dB) / SSIM per side."""
+    sides = ("input", "seen", "unseen")
+    head = ["| split | case | row | " + " | ".join(f"{s} PSNR / SSIM" for s in sides) + " |",
+            "|" + "---|" * (3 + len(sides))]
+    lines = []
+    for (split, case, label), g in table.groupby(["split", "case", "label"], sort=False):
+        cells = []
+        for side in sides:
+            r = g[g["side"] == side]
+            cells.append("-" if r.empty else f"{r['psnr'].iloc[0]:.1f} / {r['ssim'].iloc[0]:.3f}")
+        lines.append(f"| {split} | {case} | {label} | " + " | ".join(cells) + " |")
+    return "\n".join(head + lines) + "\n"

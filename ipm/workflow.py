@@ -140,11 +140,41 @@ def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: s
                                                        "machine": machine, "note": note})
 
 
+def texture_step(run: str, views: str, out: str, n_input: int, row: dict, seed: int, threads: int = 1, log=None):
+    """Appearance scores (``ipm.metrics.texture``) of the textured result in folder ``run`` against
+    the colour views ``views`` (its first ``n_input`` the run's inputs), with the row's label and
+    the case's split: ``texture.json``."""
+    with _logged(log, threads, mitsuba=True):
+        import json
+
+        from ipm.cases import case_split
+        from ipm.io import write_json
+        from ipm.metrics.texture import score_result
+
+        scores = score_result(Path(run) / "mesh.glb", Path(views) / "transforms.json", n_input)
+        case = json.loads((Path(views) / "ground_truth.json").read_text())
+        write_json(out, {**row, "case": case["name"], "split": case_split(case), "seed": seed, "inputs": n_input,
+                         **scores})
+
+
 def parts_preview_step(reference: str, transforms: str, mesh: str, png: str, threads: int = 1, log=None):
     with _logged(log, threads, mitsuba=True):
         from ipm.render.preview import parts_sheet
 
         parts_sheet(reference, mesh, transforms, png)
+
+
+def texture_table_step(scores: list[str], table: str, markdown: str, log=None):
+    """The appearance table of the textured runs (``ipm.table.texture_table``) as CSV and markdown."""
+    with _logged(log, 1):
+        from ipm.io.atomic import atomic_path
+        from ipm.table import texture_markdown, texture_table
+
+        df = texture_table(scores)
+        with atomic_path(table) as tmp:
+            df.to_csv(tmp, index=False)
+        with atomic_path(markdown) as tmp:
+            tmp.write_text(texture_markdown(df))
 
 
 def table_step(metrics: list[str], table: str, wide: str, summary: str, markdown: str, cases=None, log=None):
@@ -155,12 +185,12 @@ def table_step(metrics: list[str], table: str, wide: str, summary: str, markdown
 
 
 def report_step(table: str, wide: str, summary: str, metrics: list[str], out: str, config: dict, input_dirs: dict,
-                benchmarks: list[str] = (), log=None):
+                benchmarks: list[str] = (), textures: str | None = None, log=None):
     with _logged(log, 1):
         from reports.build import build_report
 
         build_report(table_csv=table, wide_csv=wide, summary_csv=summary, metrics=metrics, out_html=out,
-                     config=config, input_dirs=input_dirs, benchmarks=list(benchmarks))
+                     config=config, input_dirs=input_dirs, benchmarks=list(benchmarks), texture_csv=textures)
 
 
 def report_check_step(html: str, out_dir: str, rows: list[str], log=None):

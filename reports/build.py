@@ -254,6 +254,14 @@ def _masks(df: pd.DataFrame) -> dict | None:
     return None if out is None else {**out, "table": _frame(out["table"])}
 
 
+def _textures(path: str | None) -> dict | None:
+    """The appearance table (``ipm.table.texture_table``), None where no run was scored."""
+    if not path:
+        return None
+    df = pd.read_csv(path)
+    return None if df.empty else _frame(df, "{:.3f}")
+
+
 def _benchmarks(paths: list[str]) -> pd.DataFrame:
     """Snakemake's benchmark TSVs of the reconstructions, one line each with row, case and seed
     from the path (``.../{row}/{case}/s{seed}.tsv``)."""
@@ -369,12 +377,13 @@ def _cases(df: pd.DataFrame, config: dict, input_dirs: dict, results: Path, mode
 
 def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: str, config: dict,
                  input_dirs: dict | None = None, summary_csv: str | None = None,
-                 benchmarks: list[str] | None = None) -> None:
+                 benchmarks: list[str] | None = None, texture_csv: str | None = None) -> None:
     """Write ``out_html``, atomically, from the tables (``table_csv``, ``summary_csv``; the summary
     is made from the long table when not given), the per-run folders beside them (results/evaluate,
     results/reconstruct, results/synth), Snakemake's ``benchmarks`` of the reconstructions
     (``logs/benchmark/reconstruct/{row}/{case}/s{seed}.tsv``) and ``config``; ``input_dirs`` maps a
-    case to the folder of its input views. ``wide_csv`` and ``metrics`` are the table step's other
+    case to the folder of its input views; ``texture_csv`` the textured rows' appearance table
+    (``ipm.table.texture_table``). ``wide_csv`` and ``metrics`` are the table step's other
     outputs and inputs (the DAG's dependencies; the page reads the long table)."""
     import jinja2
 
@@ -396,7 +405,7 @@ def build_report(table_csv: str, wide_csv: str, metrics: list[str], out_html: st
         "siblings": [{"spec": t, **{s: metric_blocks(summary, df, t, s) for s in splits}}
                      for t in SIBLINGS if t.metric in summary],
         "paper": json.loads(PAPER_TABLE.read_text()), "bars": _fig(bars) if bars is not None else None,
-        "recovery": _recovery(summary), "masks": _masks(df), "timing": _timing(df, benchmarks or []), "cases": cases,
+        "recovery": _recovery(summary), "masks": _masks(df), "textures": _textures(texture_csv), "timing": _timing(df, benchmarks or []), "cases": cases,
         "runs": _frame(df.drop(columns=["row", "kind"]), "{:.4f}"), "provenance": _provenance(df, config),
         "model_viewer": MODEL_VIEWER.read_text().replace("</script", "<\\/script") if models and embedded else None,
         "models_off": None if models else f"3D views off: {MODEL_VIEWER.relative_to(HERE.parent)} is missing "

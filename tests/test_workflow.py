@@ -39,6 +39,8 @@ def test_dry_run_plans_every_stage(config, tmp_path):
         assert f"rule {rule}:" in res.stdout
     # the trainings and the GA's statistics: made in the run, but read from the shipped files by default
     assert ("rule prepare:" in res.stdout) == (config != "default")
+    # ours' textures scored where the config names colour views for them (not the paper's)
+    assert ("rule texture:" in res.stdout) == ("rule texture_table:" in res.stdout) == (config != "paper")
 
 
 def dry_run(tmp_path, config_text: str):
@@ -281,6 +283,14 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     assert "Table 1" in html and "ours (diff, 1 view)" in html and "data:image/png;base64" in html
     assert "test split" in html and "Parameter recovery" in html and "Mask errors" in html
     assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/parts.png").is_file()
+    # ours' textures: in the glb and beside it, scored on the two-view folder (view 1 held out)
+    fit0 = tmp_path / "results/reconstruct/diff_1v/cup_1/s0"
+    assert (fit0 / "textures/body.png").is_file() and "texture" in json.loads((fit0 / "params.json").read_text())
+    scores = json.loads((tmp_path / "results/evaluate/diff_1v/cup_1/s0/texture.json").read_text())
+    assert scores["inputs"] == 1 and [v["side"] for v in scores["views"]][0] == "input" and len(scores["views"]) == 2
+    textures = pd.read_csv(tmp_path / "results/table_texture.csv")
+    assert set(textures["case"]) == {"cup_1", "cup_t2", "building_1"} and set(textures["label"]) == {"ours (diff, 1 view)"}
+    assert textures["psnr"].gt(5).all() and textures["ssim"].between(-1, 1).all() and "Textures" in html
     assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/gallery.png").is_file()
     assert (tmp_path / "results/synth/cup_1/gallery.png").is_file()
     assert table["machine"].notna().all() and not table["machine"].eq("not recorded").any()

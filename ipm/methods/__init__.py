@@ -61,6 +61,9 @@ class Method:
     withholds_camera: bool = False
     """The diff path with the input's camera withheld (the photo rows): its start is the
     camera-hidden regressor's (``learned_photo``) where the profile asks for a learned camera."""
+    paints: bool = False
+    """Its results wear textures painted from the input's colour views (``ipm.texture``): the
+    workflow scores their appearance (``ipm.metrics.texture``)."""
     scored_by: str = "iou_mean"
     """Table 1's headline metric for its rows: ``shape_iou`` where the camera is withheld (one
     uncalibrated photo fixes neither scale against distance nor a cup's lens), the world IoU beside it."""
@@ -117,7 +120,7 @@ def row_label(name: str, views: int) -> str:
 
 
 _DIFF = dict(layout="hemi", uses_generator=True, differentiable_only=True, length=1, compiles=True)
-declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF)
+declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF, paints=True)
 _PHOTO = dict(_DIFF, withholds_camera=True, scored_by="shape_iou")
 declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_photo", **_PHOTO)
 declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_PHOTO)

@@ -303,6 +303,34 @@ def all_parts_previews():
     ]
 
 
+def texture_views():
+    """Colour views a textured run is scored on (config ``texture.views``; 0: none)."""
+    return int(config.get("texture", {}).get("views", 0))
+
+
+def texture_views_dir(wildcards):
+    """The case's colour views in the hemi layout that its textured runs are scored on."""
+    return f"results/synth/{wildcards.case}/hemi{texture_views()}"
+
+
+def all_texture_scores():
+    """Appearance scores of every run of an untagged row that paints its results (not on degraded
+    masks), where its inputs are among the scoring views."""
+    n = texture_views()
+    return [
+        f"results/evaluate/{row_id(m)}/{case}/s{seed}/texture.json"
+        for m in config["methods"]
+        if n and METHODS[m["name"]].paints and not m.get("mask") and not m.get("tag") and m["views"] <= n
+        for case in method_cases(m)
+        for seed in method_seeds(m, case)
+    ]
+
+
+def texture_table_files():
+    """The appearance table's files where any run is scored, else none."""
+    return ["results/table_texture.csv", "results/table_texture.md"] if all_texture_scores() else []
+
+
 def report_inputs():
     """Everything the report reads: per run its metrics, table line, pictures and result folder
     (trace, parameters, GLB), the reconstructions' benchmark files, per case the input views and
@@ -333,6 +361,7 @@ def get_final_output():
     return [
         "results/table.csv",
         "results/table_iou.csv",
+        *texture_table_files(),
         "results/report/index.html",
         "results/report/screenshots",
     ]

@@ -67,3 +67,28 @@ rule parts_preview:
         runtime=10,
     script:
         "../scripts/parts_preview.py"
+
+
+rule texture:
+    input:
+        run="results/reconstruct/{row}/{case}/s{seed}",
+        views=texture_views_dir,
+    output:
+        scores="results/evaluate/{row}/{case}/s{seed}/texture.json",
+    log:
+        "logs/texture/{row}/{case}/s{seed}.log",
+    benchmark:
+        "logs/benchmark/texture/{row}/{case}/s{seed}.tsv"
+    wildcard_constraints:
+        row=METHOD_ROW,
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        row=row_info,
+        n_input=method_views,
+    script:
+        "../scripts/texture.py"

@@ -31,8 +31,31 @@ rule table:
         "../scripts/table.py"
 
 
+rule texture_table:
+    input:
+        scores=all_texture_scores(),
+    output:
+        table="results/table_texture.csv",
+        markdown=report(
+            "results/table_texture.md",
+            caption="../report/table_texture.rst",
+            category="Table 1",
+        ),
+    log:
+        "logs/texture_table.log",
+    conda:
+        "../envs/ipm.yaml"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=10,
+    script:
+        "../scripts/texture_table.py"
+
+
 rule report:
     input:
+        textures=texture_table_files()[:1],
         **report_inputs(),
         # paths, not rules.table.output: a rule input naming another rule's output makes Snakemake
         # hash the whole input list once per file (the benchmark config's dry run inside the suite:

@@ -6,4 +6,4 @@ input_dirs = {case: next(v for v in views if v.endswith(d)) for case, d in snake
 report_step(table=snakemake.input.table, wide=snakemake.input.wide, summary=snakemake.input.summary,
             metrics=list(snakemake.input.metrics), benchmarks=list(snakemake.input.benchmarks),
             out=snakemake.output.html, config=dict(snakemake.params.config), input_dirs=input_dirs,
-            log=snakemake.log[0])
+            textures=next(iter(snakemake.input.textures), None), log=snakemake.log[0])

@@ -1,0 +1,5 @@
+from ipm.workflow import texture_step
+
+texture_step(run=snakemake.input.run, views=snakemake.input.views, out=snakemake.output.scores,
+             n_input=int(snakemake.params.n_input), row=snakemake.params.row, seed=int(snakemake.wildcards.seed),
+             threads=snakemake.threads, log=snakemake.log[0])

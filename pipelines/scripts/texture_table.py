@@ -1,0 +1,4 @@
+from ipm.workflow import texture_table_step
+
+texture_table_step(scores=list(snakemake.input.scores), table=snakemake.output.table,
+                   markdown=snakemake.output.markdown, log=snakemake.log[0])
