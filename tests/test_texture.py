@@ -125,3 +125,23 @@ def test_textures_go_through_the_glb_and_generate(tmp_path, mitsuba_cpu):
 def _srgb(x):
     x = np.clip(x, 0, 1)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+def test_dishes_group_texels_by_their_height_round_the_axis():
+    """Texels of one group lie at one height of the body (a row of the unrolled strip) or one
+    distance from a bottom's centre: a mug's body drawn at level 1 shows it."""
+    from ipm.generators import get_generator
+
+    gen = get_generator("dishes")
+    mesh = gen.mesh(gen.presets["mug"], 1)
+    groups = gen.texture_symmetry(0, 128)
+    sel = mesh.labels == 0
+    tx = texels(mesh.vertices, mesh.faces[sel], mesh.uv[sel], 128)
+    g = groups[tx.rows, tx.cols]
+    assert (g >= 0).mean() > 0.95  # the charts' texels are grouped (a few at a disc's rim are not)
+    radius = np.hypot(tx.points[:, 0], tx.points[:, 2])
+    for k in np.unique(g[g >= 0])[::7]:
+        same = g == k
+        if same.sum() > 20:  # a row round the axis: one height, or one radius on a bottom
+            assert min(np.ptp(tx.points[same, 1]), np.ptp(radius[same])) < 0.03
+    assert gen.texture_symmetry(1, 64).max() >= 0 and get_generator("buildings").texture_symmetry(0, 64) is None
