@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipm.errors import UserError
+from ipm.uv import texel_hits
 
 TEXTURE_RES = 256
 """Texels across a part's square texture."""
@@ -37,22 +38,12 @@ class Texels:
 def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) -> Texels:
     """The texel centres of a ``res`` square texture that the triangles' UVs (F, 3, 2) cover (u along
     the columns, v along the rows from the bottom, as glTF's and Mitsuba's bitmaps are read)."""
-    vertices, faces, uv = np.asarray(vertices, np.float64), np.asarray(faces), np.asarray(uv, np.float64)
-    tri = uv * res - 0.5
-    lo = np.clip(np.ceil(tri.min(1)), 0, res - 1).astype(int)
-    hi = np.clip(np.floor(tri.max(1)), 0, res - 1).astype(int)
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces)
     owner = np.full((res, res), -1)
     weights = np.zeros((res, res, 3))
-    for k in np.flatnonzero(np.abs(det) > 1e-12):
-        xs, ys = np.meshgrid(np.arange(lo[k, 0], hi[k, 0] + 1), np.arange(lo[k, 1], hi[k, 1] + 1))
-        px, py = xs - a[k, 0], ys - a[k, 1]
-        s = (px * (c[k, 1] - a[k, 1]) - py * (c[k, 0] - a[k, 0])) / det[k]
-        t = (py * (b[k, 0] - a[k, 0]) - px * (b[k, 1] - a[k, 1])) / det[k]
-        inside = (s >= -1e-9) & (t >= -1e-9) & (s + t <= 1 + 1e-9)
-        owner[ys[inside], xs[inside]] = k
-        weights[ys[inside], xs[inside]] = np.stack([1 - s[inside] - t[inside], s[inside], t[inside]], -1)
+    for k, cols, rows, bary in texel_hits(uv, res):
+        owner[rows, cols] = k
+        weights[rows, cols] = bary
     v_idx, u_idx = np.nonzero(owner >= 0)
     k = owner[v_idx, u_idx]
     corners = vertices[faces[k]]  # (N, 3, 3)
@@ -63,17 +54,10 @@ def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) ->
 
 
 def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """``image`` (H, W, ...) at pixel positions ``xy`` (N, 2) (x right, y down, centres at +0.5)."""
-    h, w = image.shape[:2]
-    x = np.clip(xy[:, 0] - 0.5, 0, w - 1)
-    y = np.clip(xy[:, 1] - 0.5, 0, h - 1)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    fx, fy = (x - x0), (y - y0)
-    if image.ndim == 3:
-        fx, fy = fx[:, None], fy[:, None]
-    return ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x1])
-            + fy * ((1 - fx) * image[y1, x0] + fx * image[y1, x1]))
+    """``image`` (H, W[, channels]) at pixel positions ``xy`` (N, 2) (x right, y down, centres at +0.5)."""
+    from ipm.io.lens import sample_image
+
+    return sample_image(np.asarray(image, np.float64)[None], xy[None, :, 0] - 0.5, xy[None, :, 1] - 0.5, False)[0, 0]
 
 
 def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> np.ndarray:

@@ -52,23 +52,33 @@ def weld(faces: np.ndarray, corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return unique[:, 0], inverse.reshape(faces.shape), np.asarray(corner_uv).reshape(-1, 2)[first]
 
 
-def overlap(corner_uv: np.ndarray, res: int = 1024) -> float:
-    """Share of the texels (pixel centres of a ``res`` square over [0, 1]^2) inside some triangle
-    that lie inside more than one: 0 for a layout without overlaps (a texel on a shared edge counts
-    for neither triangle)."""
-    tri = np.asarray(corner_uv, np.float64) * res - 0.5  # pixel centres at integers
-    count = np.zeros((res, res), np.int32)
+def texel_hits(corner_uv: np.ndarray, res: int, edges: bool = True):
+    """For each triangle with an area in UV (F, 3, 2), the texel centres of a ``res`` square over
+    [0, 1]^2 inside it (``edges``: on its edges too): yields the triangle's index, the texels'
+    columns and rows (row 0 at v = 0) and their barycentric coordinates (n, 3)."""
+    tri = np.asarray(corner_uv, np.float64) * res - 0.5  # texel centres at integers
     lo = np.clip(np.ceil(tri.min(1)), 0, res - 1).astype(int)
     hi = np.clip(np.floor(tri.max(1)), 0, res - 1).astype(int)
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    eps = -1e-9 if edges else 1e-9
     for k in np.flatnonzero(np.abs(det) > 1e-12):
         xs, ys = np.meshgrid(np.arange(lo[k, 0], hi[k, 0] + 1), np.arange(lo[k, 1], hi[k, 1] + 1))
         px, py = xs - a[k, 0], ys - a[k, 1]
         s = (px * (c[k, 1] - a[k, 1]) - py * (c[k, 0] - a[k, 0])) / det[k]
         t = (py * (b[k, 0] - a[k, 0]) - px * (b[k, 1] - a[k, 1])) / det[k]
-        inside = (s > 1e-9) & (t > 1e-9) & (s + t < 1 - 1e-9)
-        count[ys[inside], xs[inside]] += 1
+        inside = (s > eps) & (t > eps) & (s + t < 1 - eps)
+        s, t = s[inside], t[inside]
+        yield k, xs[inside], ys[inside], np.stack([1 - s - t, s, t], -1)
+
+
+def overlap(corner_uv: np.ndarray, res: int = 1024) -> float:
+    """Share of the texels (centres of a ``res`` square over [0, 1]^2) inside some triangle that lie
+    inside more than one: 0 for a layout without overlaps (a texel on a shared edge counts for
+    neither triangle)."""
+    count = np.zeros((res, res), np.int32)
+    for _, cols, rows, _ in texel_hits(corner_uv, res, edges=False):
+        count[rows, cols] += 1
     covered = int((count > 0).sum())
     return float((count > 1).sum() / covered) if covered else 0.0
 

@@ -74,7 +74,7 @@ class Lens:
         if images.shape[1:3] != (self.height, self.width):
             raise UserError(f"images are {images.shape[2]}x{images.shape[1]} px, the camera {self.width}x{self.height}")
         src = self.source_pixels()
-        return _sample(images, src[..., 0], src[..., 1], nearest)
+        return sample_image(images, src[..., 0], src[..., 1], nearest)
 
     def twin_margin(self) -> int:
         """Pixels the pinhole twin's canvas must grow by on every side to hold all that the capture
@@ -95,7 +95,7 @@ class Lens:
             raise UserError(f"twin images are {images.shape[2]}x{images.shape[1]} px, the camera with its margin "
                             f"{self.width + 2 * margin}x{self.height + 2 * margin}")
         x, y = self._twin_pixels_of_capture(margin)
-        return _sample(images, x, y, nearest)
+        return sample_image(images, x, y, nearest)
 
     def _twin_pixels_of_capture(self, margin: int) -> tuple[np.ndarray, np.ndarray]:
         """Where each capture pixel's ray meets the twin's canvas (``margin`` px wider on every
@@ -108,7 +108,7 @@ class Lens:
         return x.reshape(self.height, self.width), y.reshape(self.height, self.width)
 
 
-def _sample(images: np.ndarray, x: np.ndarray, y: np.ndarray, nearest: bool) -> np.ndarray:
+def sample_image(images: np.ndarray, x: np.ndarray, y: np.ndarray, nearest: bool) -> np.ndarray:
     """``images`` (n, h, w[, channels]) read at the array coordinates ``x`` (columns), ``y`` (rows)
     of an output grid: bilinear (``nearest`` for labels), zero outside; the dtype kept (floats stay
     floats; integers are rounded)."""
