@@ -156,6 +156,20 @@ def fill(texture: np.ndarray, seen: np.ndarray, covered: tuple[np.ndarray, np.nd
     return out
 
 
+def pad(texture: np.ndarray, covered: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``texture`` with every texel outside the charts (not among ``covered`` (rows, cols)) set to
+    its nearest covered texel's colour, so that filtering at a chart's edge never reads the empty
+    gutter (a band one or two texels high, a goblet's foot, would render dark)."""
+    from scipy.ndimage import distance_transform_edt
+
+    outside = np.ones(texture.shape[:2], bool)
+    outside[covered] = False
+    if outside.all():
+        return texture
+    rows, cols = distance_transform_edt(outside, return_distances=False, return_indices=True)
+    return texture[rows, cols]
+
+
 def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,
           lighting: str | None = "reference", res: int = TEXTURE_RES, spp: int = 32) -> tuple[dict, dict]:
     """Every part's texture {part index: (res, res, 3) linear albedo} of a fitted ``mesh`` (world
@@ -182,7 +196,7 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
         part = int(part)
         texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
         groups = generator.texture_symmetry(part, res)
-        textures[part] = np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0)
+        textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0), (tx.rows, tx.cols))
         seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
     return textures, seen_share
 

@@ -145,3 +145,16 @@ def test_dishes_group_texels_by_their_height_round_the_axis():
         if same.sum() > 20:  # a row round the axis: one height, or one radius on a bottom
             assert min(np.ptp(tx.points[same, 1]), np.ptp(radius[same])) < 0.03
     assert gen.texture_symmetry(1, 64).max() >= 0 and get_generator("buildings").texture_symmetry(0, 64) is None
+
+
+def test_pad_gives_the_gutter_its_nearest_chart_colour():
+    from ipm.texture import pad
+
+    texture = np.zeros((4, 6, 3))
+    texture[1:3, 1:3] = (1.0, 0.5, 0.0)
+    texture[1:3, 4] = (0.0, 0.0, 1.0)
+    rows, cols = np.nonzero(texture.sum(-1) > 0)
+    out = pad(texture, (rows, cols))
+    np.testing.assert_allclose(out[0, 0], (1.0, 0.5, 0.0))  # beside the first chart
+    np.testing.assert_allclose(out[3, 5], (0.0, 0.0, 1.0))  # beside the second
+    np.testing.assert_allclose(out[rows, cols], texture[rows, cols])  # the charts untouched
