@@ -1,9 +1,10 @@
-"""Texture coordinates: one UV per triangle corner, charts of swept surfaces, the welding of
-corners into a file's vertices, and the two measures of a layout (overlap inside a part, texel
-stretch) that ``docs/design``, "Outputs" asks of every generator.
+"""Texture coordinates: one UV per triangle corner, charts of swept surfaces, their packing, and
+the two measures of a layout (overlap inside a part, texel stretch) that ``docs/design``,
+"Outputs" asks of every generator.
 
 A corner's UV (shape (F, 3, 2)) lets a seam split a vertex without splitting the mesh: the
-positions stay one watertight solid, and a writer welds the corners that share a vertex and a UV.
+positions stay one watertight solid, and a file's writer welds the corners that share a vertex
+and a UV (``ipm.io.mesh.weld``).
 """
 from __future__ import annotations
 
@@ -40,16 +41,6 @@ def sweep_uv(faces: np.ndarray, n_rows: int, n_ring: int, offset: int, row_v: np
         disc[faces[fan] == pole] = (cu, cv)
         out[fan] = disc
     return out
-
-
-def weld(faces: np.ndarray, corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One vertex per distinct (vertex, UV) pair: the source vertex of each (W,), the faces over them
-    (F, 3) and their UVs (W, 2)."""
-    faces = np.asarray(faces)
-    key = np.concatenate([faces.reshape(-1, 1),
-                          np.round(np.asarray(corner_uv).reshape(-1, 2) * (1 << 24)).astype(np.int64)], 1)
-    unique, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    return unique[:, 0], inverse.reshape(faces.shape), np.asarray(corner_uv).reshape(-1, 2)[first]
 
 
 def texel_hits(corner_uv: np.ndarray, res: int, edges: bool = True):

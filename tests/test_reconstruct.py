@@ -36,9 +36,12 @@ def test_diff_reconstruction_writes_everything(tmp_path, tiny_case, renderer):
     out = tmp_path / "rec"
     info = METHODS["diff"](tiny_case / "transforms.json", out, generator="dishes", profile="smoke", seed=3,
                            progress=False, n_input_views=1, renderer=renderer, **SMALL)
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.ply", "params.json", "timing.json",
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.ply", "params.json", "textures", "timing.json",
                                                      "trace.csv"]
     params = json.loads((out / "params.json").read_text())
+    # painted from the colour view under synth's light: a texture per part the fit has, in the glb too
+    assert params["texture"]["lighting"] == "reference" and 0 < params["texture"]["seen"]["body"] < 1
+    assert {p.name for p in (out / "textures").iterdir()} == {f"{n}.png" for n in params["texture"]["seen"]}
     gen = get_generator("dishes")
     assert list(params["params"]) == list(gen.spec.names) and params == json.loads(json.dumps(info))
     assert set(params["pose"]) == {"yaw", "tilt_x", "tilt_z", "translation", "scale"}

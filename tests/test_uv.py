@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from ipm.generators import get_generator
-from ipm.uv import area_quantile, corners_from_vertices, overlap, stretch, sweep_atlas, weld
+from ipm.io.mesh import weld
+from ipm.uv import area_quantile, corners_from_vertices, overlap, stretch, sweep_atlas
 
 STRETCH_P95 = 4.0
 """A texel at most 4 times longer or shorter than its part's mean along any direction over 95 % of

@@ -10,7 +10,6 @@ from PIL import Image
 
 from ipm.errors import UserError
 from ipm.io.atomic import atomic_path
-from ipm.uv import weld
 
 
 def load_mesh(path: str | os.PathLike, allow_empty: bool = False) -> trimesh.Trimesh:
@@ -52,6 +51,16 @@ def save_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
 PART_COLOURS = ((0.80, 0.78, 0.74), (0.35, 0.55, 0.75), (0.45, 0.33, 0.22), (0.62, 0.25, 0.20),
                 (0.30, 0.20, 0.12), (0.55, 0.55, 0.58), (0.25, 0.55, 0.22), (0.70, 0.65, 0.30))
 """Base colours of the parts' materials, by part index (repeating)."""
+
+
+def weld(faces: np.ndarray, corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One vertex per distinct (vertex, UV) pair: the source vertex of each (W,), the faces over them
+    (F, 3) and their UVs (W, 2)."""
+    faces = np.asarray(faces)
+    key = np.concatenate([faces.reshape(-1, 1),
+                          np.round(np.asarray(corner_uv).reshape(-1, 2) * (1 << 24)).astype(np.int64)], 1)
+    unique, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return unique[:, 0], inverse.reshape(faces.shape), np.asarray(corner_uv).reshape(-1, 2)[first]
 
 
 def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
