@@ -181,6 +181,10 @@ def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
         back = np.asarray(info["world_from_input"])
         np.testing.assert_allclose(back[:3, :3] @ Y_TO_Z[:3, :3], np.eye(3), atol=1e-6)
         assert (out / "mesh.glb").is_file()
+        if name == "z_up":  # its frames name colour images it does not have: the fit stands, unpainted
+            assert "cannot read colour image" in info["texture"]["skipped"] and not (out / "textures").exists()
+        else:  # COLMAP's images are the colour views (their light unknown): painted as seen
+            assert info["texture"]["lighting"] is None and (out / "textures" / "body.png").is_file()
     res = ipm("reconstruct", "--generator", "dishes", "--colmap", str(m / "sparse"), "--masks", str(m / "masks"),
               "--out", str(tmp_path / "bad"), "--profile", "smoke")
     assert "--colmap needs --images" in _one_line_error(res) and not (tmp_path / "bad").exists()

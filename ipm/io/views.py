@@ -158,10 +158,10 @@ def _shared(path: Path, data: dict, frames: list, key: str):
     return json.loads(values.pop())
 
 
-def _frame_image(path: Path, name) -> Path:
-    """A frame's image path, relative to the views file; ``.png`` added where the name has no
-    extension and no such file exists (NeRF-synthetic leaves it out)."""
-    image = path.parent / str(name)
+def _frame_image(folder: Path, name) -> Path:
+    """A frame's image path, relative to the views file's ``folder`` (or absolute); ``.png`` added
+    where the name has no extension and no such file exists (NeRF-synthetic leaves it out)."""
+    image = folder / str(name)
     return image.with_suffix(".png") if not image.is_file() and not image.suffix else image
 
 
@@ -171,7 +171,7 @@ def _image_size(path: Path, frames: list) -> tuple[int, int]:
     first = frames[0] if isinstance(frames[0], dict) else {}
     for key in ("file_path", "mask_path"):
         if key in first:
-            image = _frame_image(path, first[key])
+            image = _frame_image(path.parent, first[key])
             try:
                 with Image.open(image) as img:
                     return img.size
@@ -264,7 +264,7 @@ def load_views(path: str | os.PathLike | Views, masks: bool = True, semantics: b
             if "mask_path" in fr:
                 mask_list.append(_read_mask(path.parent / fr["mask_path"], width, height))
             elif "file_path" in fr:  # the image's alpha (NeRF-synthetic, nerfstudio) or its colours
-                mask_list.append(_read_mask(_frame_image(path, fr["file_path"]), width, height, alpha=True))
+                mask_list.append(_read_mask(_frame_image(path.parent, fr["file_path"]), width, height, alpha=True))
             else:
                 raise UserError(f"{path}: frame {i} has no mask_path (nor a file_path to take the mask from)")
         mask_arr = resampled_masks(np.stack(mask_list), lens, path)
@@ -298,7 +298,7 @@ def load_photos(views: Views) -> np.ndarray | None:
         return None
     images = []
     for fr in views.frames:
-        path = Path(fr["file_path"]) if Path(fr["file_path"]).is_absolute() else views.root / fr["file_path"]
+        path = _frame_image(views.root, fr["file_path"])
         try:
             with Image.open(path) as im:
                 rgb = np.asarray(im.convert("RGB"), np.float64) / 255.0

@@ -14,6 +14,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from ipm.capture import open_views
+from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io.views import Views
 from ipm.methods import check_generator
@@ -91,12 +92,16 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
     """The fit's result folder (``ipm.methods.results``): its mesh at the output level of detail,
     moved first by ``place`` (4 x 4, a similarity) where given, and ``info`` with the decoded ``z``;
     where ``views`` (in the mesh's world) have colour images, the mesh painted from them
-    (``ipm.texture``; its seconds in the fit's and apart as ``texture_seconds``)."""
+    (``ipm.texture``; its seconds in the fit's and apart as ``texture_seconds``; where they cannot
+    be read, params.json's ``texture`` says why and the mesh stays unpainted)."""
     mesh = placed_mesh(problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod)), place)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
             "settings": prof.as_dict(), **start_record(trace, prof), **info}
     t0 = time.perf_counter()
-    textures = painted(problem.generator, mesh, views) if views is not None else None
+    try:
+        textures = painted(problem.generator, mesh, views) if views is not None else None
+    except UserError as exc:  # the fit stands; its texture cannot be made (a colour image missing)
+        textures, info["texture"] = None, {"skipped": str(exc)}
     timing = {"seconds": seconds + time.perf_counter() - t0}
     if textures is not None:
         textures, seen = textures
