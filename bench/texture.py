@@ -35,9 +35,10 @@ def run(args: list[str]) -> None:
 def one(case: str, views: Path, n_input: int, seed: int, work: Path) -> dict:
     """Reconstruct ``case`` from its first ``n_input`` views and score its textured result."""
     from ipm.metrics.texture import score_result
+    from ipm.synth import load_case
 
     out = work / f"{case}_{n_input}v_s{seed}"
-    run(["reconstruct", "--generator", "dishes" if case.startswith("cup") else "buildings", "--views",
+    run(["reconstruct", "--generator", load_case(case)["generator"], "--views",
          str(views / "transforms.json"), "--n-input-views", str(n_input), "--seed", str(seed), "--threads", "1",
          "--out", str(out), "--quiet"])
     info = json.loads((out / "params.json").read_text())

@@ -77,13 +77,13 @@ def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> 
 
 
 def _mesh_scene(vertices: np.ndarray, faces: np.ndarray):
+    """A Mitsuba scene of the fitted mesh alone, for ray casts."""
     import mitsuba as mi
 
+    from ipm.render.textured import set_mesh_buffers
+
     mesh = mi.Mesh("fit", len(vertices), len(faces))
-    mp = mi.traverse(mesh)
-    mp["vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
-    mp["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
-    mp.update()
+    set_mesh_buffers(mesh, vertices, faces)
     return mi.load_dict({"type": "scene", "fit": mesh})
 
 

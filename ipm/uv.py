@@ -167,9 +167,17 @@ def pack(sizes: np.ndarray, gutter: float = 2 / 1024) -> tuple[np.ndarray, float
     return corners, lo
 
 
-def pack_charts(local: np.ndarray, chart: np.ndarray, sizes: np.ndarray, gutter: float = 2 / 1024) -> np.ndarray:
-    """Per-corner UVs (F, 3, 2) in the unit square of one part: each triangle's corners ``local``
-    (F, 3, 2) in its chart's own frame (surface units, within [0, size]), ``chart`` (F,) its chart,
-    ``sizes`` (C, 2) the charts' extents, packed by :func:`pack`."""
-    corner, scale = pack(sizes, gutter)
-    return corner[chart][:, None, :] + scale * np.asarray(local)
+def pack_parts(local: np.ndarray, chart: np.ndarray, sizes: np.ndarray, labels: np.ndarray,
+               gutter: float = 2 / 1024) -> np.ndarray:
+    """Per-corner UVs (F, 3, 2), each part's charts packed by :func:`pack` into its own unit square:
+    each triangle's corners ``local`` (F, 3, 2) in its chart's own frame (surface units, within
+    [0, size]), ``chart`` (F,) its chart among ``sizes`` (C, 2), ``labels`` (F,) its part (a chart
+    no triangle uses takes no room)."""
+    local = np.asarray(local)
+    uv = np.zeros_like(local, dtype=np.float64)
+    for part in np.unique(labels):
+        sel = labels == part
+        used, inverse = np.unique(chart[sel], return_inverse=True)
+        corner, scale = pack(sizes[used], gutter)
+        uv[sel] = corner[inverse][:, None, :] + scale * local[sel]
+    return uv

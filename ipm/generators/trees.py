@@ -56,7 +56,7 @@ from ipm.generators.base import GENERATORS, Generator, Mesh, make_spec
 from ipm.generators.trees_geometry import (BranchGraph, Stems, cross, curve_per_segment, graph_arrays, leaf_mesh,
                                           rodrigues, shape_ratio, tube_mesh, unit)
 from ipm.io.semantic import BRANCH, FOLIAGE, LABEL_NAMES
-from ipm.uv import pack_charts
+from ipm.uv import pack_parts
 
 N_LEVELS = 3
 """Branch levels below the trunk (W-P ``Levels`` counts the trunk too)."""
@@ -467,23 +467,13 @@ def _levels(n, branches, length, length_v, down, down_v, rotate, curve, curve_ba
             q + "curve_v": curve_v, q + "curve_res": res, q + "seg_splits": seg_splits}
 
 
-
 def _uv(charts: list[tuple], labels: np.ndarray) -> np.ndarray:
     """Per-corner UVs of a tree's triangles: each part's charts (every stem's side and caps, every
     leaf's two sides; ``tube_mesh``, ``leaf_mesh``, in the faces' order) packed into its own square."""
-    uv = np.zeros((len(labels), 3, 2))
-    local = np.concatenate([c[0] for c in charts])
-    chart, sizes, offset = [], [], 0
-    for c in charts:
-        chart.append(c[1] + offset)
-        sizes.append(c[2])
-        offset += len(c[2])
-    chart, sizes = np.concatenate(chart), np.concatenate(sizes)
-    for part in np.unique(labels):
-        sel = labels == part
-        used, inverse = np.unique(chart[sel], return_inverse=True)
-        uv[sel] = pack_charts(local[sel], inverse, sizes[used])
-    return uv
+    offsets = np.cumsum([0] + [len(c[2]) for c in charts[:-1]])
+    chart = np.concatenate([c[1] + o for c, o in zip(charts, offsets)])
+    return pack_parts(np.concatenate([c[0] for c in charts]), chart, np.concatenate([c[2] for c in charts]), labels)
+
 
 @GENERATORS.register("trees")
 class Trees(Generator):
@@ -580,7 +570,7 @@ class Trees(Generator):
         verts, faces, charts, labels, normals = [], [], [], [], []
         n_v = 0
         for level, st in enumerate(stems):
-            v, f, chart, n = tube_mesh(st, tree.rings[level])
+            v, f, chart, n = tube_mesh(st, tree.rings[level], uv)
             verts.append(v)
             faces.append(f + n_v)
             charts.append(chart)
@@ -592,7 +582,7 @@ class Trees(Generator):
         leaf = tree.leaves(stems[-1], p["leaf_scale"] * (hi - lo))
         n_leaves = 0
         if leaf is not None:
-            v, f, chart, n = leaf_mesh(*leaf, int(p["leaf_shape"]))
+            v, f, chart, n = leaf_mesh(*leaf, int(p["leaf_shape"]), uv)
             verts.append(v)
             faces.append(f + n_v)
             charts.append(chart)

@@ -133,10 +133,11 @@ def curve_per_segment(res: int, curve: float, back: float) -> np.ndarray:
     return np.where(first, np.radians(curve) / half, np.radians(back) / half)
 
 
-def tube_mesh(st: Stems, n_ring: int):
+def tube_mesh(st: Stems, n_ring: int, charts: bool = True):
     """Closed tubes along every stem: rings at the samples from m0 on, flat caps at both ends.
 
-    Returns vertices, faces, charts (``_tube_charts``) and normals (radial on rings, axial at caps).
+    Returns vertices, faces, charts (``_tube_charts``; None without ``charts``) and normals
+    (radial on rings, axial at caps).
     """
     M1 = st.rad.shape[1]
     M = M1 - 1
@@ -171,7 +172,8 @@ def tube_mesh(st: Stems, n_ring: int):
     cap_e = np.stack([np.repeat(ce, n_ring), (L0 + kk).ravel(), (L0 + k1).ravel()], -1)
     normals = np.concatenate([out.reshape(-1, 3), -T[fi], T[li]])
     faces = np.concatenate([side, cap_s, cap_e])
-    return np.concatenate(verts), faces, _tube_charts(st, si, mi, a, fi, li, n_ring), normals
+    return (np.concatenate(verts), faces, _tube_charts(st, si, mi, a, fi, li, n_ring) if charts else None,
+            normals)
 
 
 def _tube_charts(st: Stems, si, mi, a, fi, li, n_ring: int):
@@ -213,11 +215,12 @@ def _tube_charts(st: Stems, si, mi, a, fi, li, n_ring: int):
     return np.concatenate(local), np.concatenate(chart), sizes
 
 
-def leaf_mesh(base, along, across, nrm, shape: int):
+def leaf_mesh(base, along, across, nrm, shape: int, charts: bool = True):
     """Closed thin lenses: the outline plus an apex above and below its centre.
 
-    Normals: the apexes face up and down, rim vertices outwards in the leaf plane (the limit of
-    the lens's area-weighted normals as it gets thin).
+    Returns vertices, faces, charts (each leaf side's outline at its size; None without
+    ``charts``) and normals: the apexes face up and down, rim vertices outwards in the leaf plane
+    (the limit of the lens's area-weighted normals as it gets thin).
     """
     rim = LEAF_RIMS[shape]
     nr = len(rim)
@@ -232,6 +235,8 @@ def leaf_mesh(base, along, across, nrm, shape: int):
     back = np.stack([np.broadcast_to(o + nr + 1, (L, nr)), o + i1, o + i], -1)
     faces = np.concatenate([front, back], 1).reshape(-1, 3)
     n = unit(np.concatenate([unit(pts - centre[:, None]), nrm[:, None], -nrm[:, None]], 1)).reshape(-1, 3)
+    if not charts:
+        return verts, faces, None, n
     # charts: each leaf's upper and lower side its outline at its size (leaves 0..L-1 upper, L..2L-1 lower)
     extent = np.stack([np.linalg.norm(along, axis=1), np.linalg.norm(across, axis=1)], -1)  # (L, 2)
     flat = (rim - rim.min(0))[None] * extent[:, None]  # (L, nr, 2)
@@ -239,8 +244,7 @@ def leaf_mesh(base, along, across, nrm, shape: int):
     upper = np.stack([np.broadcast_to(middle, flat.shape), flat, np.roll(flat, -1, axis=1)], -2)
     lower = np.stack([np.broadcast_to(middle, flat.shape), np.roll(flat, -1, axis=1), flat], -2)
     local = np.concatenate([upper, lower], 1).reshape(-1, 3, 2)
-    chart = np.concatenate([np.repeat(np.arange(L), nr)[:, None].reshape(L, nr), L + np.repeat(np.arange(L), nr)
-                            .reshape(L, nr)], 1).ravel()
+    chart = (np.arange(L)[:, None] + L * (np.arange(2 * nr) >= nr)[None]).ravel()  # each leaf's nr faces up, nr down
     sizes = np.tile(np.maximum(np.ptp(rim, 0)[None] * extent, 1e-4), (2, 1))
     return verts, faces, (local, chart, sizes), n
 

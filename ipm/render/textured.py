@@ -64,11 +64,12 @@ def render_parts(vertices, faces, labels, c2w: np.ndarray, fov_x: float, width: 
 
 def _render_lit(mesh, v, f, c2w, fov_x, width, height, spp):
     """Set the mesh buffers and render it under the reference lighting from each camera."""
-    _set_buffers(mesh, v, f)
+    set_mesh_buffers(mesh, v, f)
     return _render_scene({"object": mesh}, c2w, fov_x, width, height, spp)
 
 
-def _set_buffers(mesh, v, f) -> None:
+def set_mesh_buffers(mesh, v, f) -> None:
+    """Give a Mitsuba mesh its vertex positions (V, 3) and faces (F, 3)."""
     import mitsuba as mi
 
     mp = mi.traverse(mesh)
@@ -111,7 +112,7 @@ def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray,
             props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": 1.0}})
         mesh = mi.Mesh(f"part_{k}", len(v), len(f), has_vertex_texcoords=True, props=props)
         mi.traverse(mesh)["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
-        _set_buffers(mesh, v, f)
+        set_mesh_buffers(mesh, v, f)
         shapes[f"part_{k}"] = mesh
     return _render_scene(shapes, c2w, fov_x, width, height, spp)
 

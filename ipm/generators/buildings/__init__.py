@@ -352,7 +352,7 @@ class Buildings(Generator):
         faces, labels = faces[keep], np.repeat(parts, per_solid)[keep]
         ref = np.where(self.spec.discrete, x, self._typical())  # the charts' shapes: a typical building's faces
         at = np.asarray(self.positions_fn(key, lod)(jnp.asarray(ref, jnp.float32)), np.float64)
-        uv = charts(self._layout_fn(lod)[1], at, parts, present.astype(bool), len(PARTS))
+        uv = charts(self._layout_fn(lod)[1], at, parts, present.astype(bool))
         return Topology(faces, labels.astype(np.int32), uv, len(at))
 
     def positions_fn(self, key, lod):

@@ -1,13 +1,13 @@
 """Texture charts of the buildings' solids: every planar face of a box or a roof a rectangle (a
 roof's end a pentagon in one) sized by the face at a topology's reference parameters, packed per
-part into its unit square (``ipm.uv.pack``). A chart's shape does not follow the parameters, so a
+part into its unit square (``ipm.uv.pack_parts``). A chart's shape does not follow the parameters, so a
 part's texture stays on its faces when they move."""
 from __future__ import annotations
 
 import numpy as np
 
 from ipm.generators.buildings.solids import BITS, BOX_FACES, ROOF_FACES
-from ipm.uv import pack
+from ipm.uv import pack_parts
 
 MIN_SIDE = 0.05
 """The least side of a face's chart (object units): a face that is flat where the chart is drawn
@@ -106,8 +106,8 @@ def _face_charts(kind: str, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return local, sizes
 
 
-def charts(kinds: list[tuple[str, int, int]], positions: np.ndarray, parts: np.ndarray, present: np.ndarray,
-           n_parts: int) -> np.ndarray:
+def charts(kinds: list[tuple[str, int, int]], positions: np.ndarray, parts: np.ndarray,
+           present: np.ndarray) -> np.ndarray:
     """Per-corner UVs (F, 3, 2) of the present solids' triangles, in the layout's order: ``kinds``
     (kind, solids, vertices a solid) as laid out, every solid's positions at the reference
     parameters, each solid's part and whether the building has it. Each part's faces are packed
@@ -128,10 +128,5 @@ def charts(kinds: list[tuple[str, int, int]], positions: np.ndarray, parts: np.n
         solid += n
     units, tri_face, sizes = np.concatenate(units), np.concatenate(tri_face), np.concatenate(sizes)
     face_part, face_keep = np.concatenate(face_part), np.concatenate(face_keep).astype(bool)
-    corner, scale = np.zeros_like(sizes), np.zeros(len(sizes))
-    for p in range(n_parts):
-        sel = face_keep & (face_part == p)
-        if sel.any():
-            corner[sel], scale[sel] = pack(sizes[sel])
-    uv = corner[tri_face][:, None, :] + scale[tri_face][:, None, None] * units
-    return uv[face_keep[tri_face]]
+    kept = face_keep[tri_face]
+    return pack_parts(units[kept], tri_face[kept], sizes, face_part[tri_face][kept])
