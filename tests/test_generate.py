@@ -102,17 +102,27 @@ def test_bad_options_give_one_line(tmp_path):
 
 
 def test_glbs_pass_the_khronos_validator(tmp_path):
-    """Every level of detail of a building and a cup, and a reconstruction's GLB layout (posed):
-    no errors and no warnings from the Khronos glTF validator."""
+    """Every level of detail of a building and a cup, plain and textured (one baseColorTexture per
+    part, TEXCOORD_0), and a reconstruction's GLB layout (posed): no errors and no warnings from the
+    Khronos glTF validator."""
+    from ipm.io.views import save_texture
+
     assert (VALIDATOR / "node_modules" / "gltf-validator").is_dir(), "run scripts/setup.sh (npm ci in tests/gltf)"
     files = []
+    rng = np.random.default_rng(0)
     for generator, preset in (("buildings", "townhouse"), ("dishes", "mug")):
         gen = get_generator(generator)
         pose = {"yaw": 0.3, "tilt_x": 0.0, "tilt_z": 0.0, "translation": [0.0, 0.0, 0.1], "scale": 1.2}
         params = _params_file(tmp_path, generator, gen.presets[preset], pose)
+        textures = tmp_path / f"{generator}_textures"
+        for name in gen.part_names:
+            save_texture(textures / f"{name}.png", rng.integers(0, 256, (16, 16, 3)))
         for lod in gen.lods:
             files.append(tmp_path / f"{generator}_{lod}.glb")
             generate(generator, params, lod, files[-1], world=lod == max(gen.lods))
+            files.append(tmp_path / f"{generator}_{lod}_textured.glb")
+            generate(generator, params, lod, files[-1], textures=textures)
+            assert "textures" in _glb_json(files[-1])
     res = subprocess.run(["node", str(VALIDATOR / "validate.js"), *map(str, files)], capture_output=True,
                          text=True, timeout=300)
     assert res.returncode == 0, res.stderr
