@@ -1,14 +1,17 @@
-"""Benchmark: textured results. Each case is synthesised with colour views under the reference
-lighting (``ipm synth``, the hemi layout); ours reconstructs it from its first 1 and 6 views and
-paints its parts from them (``ipm.texture``); each result is rendered under the same lighting and
-scored against every reference view (``ipm.metrics.texture``: masked PSNR and SSIM in sRGB) on the
-input views, the other views of the half of the sphere the inputs see, and those of the other half.
+"""Benchmark: appearance. Each case is synthesised with colour views under the reference lighting
+(``ipm synth``): the hemi layout's views are the inputs, the held layout's (view 0 the same input
+view, the others between any inputs) the scoring views. Ours reconstructs it from its first 1 and
+6 hemi views and paints its parts from them (``ipm.texture``); instant-NGP-style (``--ngp N``)
+fits its radiance field to N of them. Each result is rendered under the reference lighting (the
+field as it is) and scored against every held view (``ipm.metrics.texture``: masked PSNR and SSIM
+in sRGB) on the input view, the half of the sphere it sees and the other half.
 
-    .venv/bin/python bench/texture.py [--cases cup_1 cup_2] [--inputs 1 6] [--views 16] [--seeds 0]
-        [--jobs 2] [--out results/bench/texture]
+    .venv/bin/python bench/texture.py [--cases cup_1 cup_2] [--inputs 1 6] [--ngp 16] [--views 16]
+        [--seeds 0] [--jobs 2] [--out results/bench/texture]
 
-A fit runs as ``ipm reconstruct`` on one thread, ``--jobs`` at a time. Tune nothing on what it
-prints for test cases: run it on dev cases (the defaults) to choose, on test cases to report.
+A fit runs as ``ipm reconstruct`` / ``ipm baseline ngp`` on one thread, ``--jobs`` at a time.
+Tune nothing on what it prints for test cases: run it on dev cases (the defaults) to choose, on
+test cases to report.
 """
 from __future__ import annotations
 
@@ -32,35 +35,40 @@ def run(args: list[str]) -> None:
         raise SystemExit(f"ipm {' '.join(args)} failed:\n{done.stderr[-2000:]}")
 
 
-def one(case: str, views: Path, n_input: int, seed: int, work: Path) -> dict:
-    """Reconstruct ``case`` from its first ``n_input`` views and score its textured result."""
+def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
+    """Fit ``case`` with ``row`` (diff or ngp) from its first ``n_input`` hemi views and score the
+    result's appearance on its held views."""
+    from ipm.methods import METHODS
     from ipm.metrics.texture import score_result
     from ipm.synth import load_case
 
-    out = work / f"{case}_{n_input}v_s{seed}"
-    run(["reconstruct", "--generator", load_case(case)["generator"], "--views",
-         str(views / "transforms.json"), "--n-input-views", str(n_input), "--seed", str(seed), "--threads", "1",
-         "--out", str(out), "--quiet"])
-    info = json.loads((out / "params.json").read_text())
+    out = work / f"{case}_{row}{n_input}v_s{seed}"
+    views = ["--views", str(work / case / "hemi" / "transforms.json"), "--n-input-views", str(n_input),
+             "--seed", str(seed), "--threads", "1", "--out", str(out), "--quiet"]
+    if row == "diff":
+        run(["reconstruct", "--generator", load_case(case)["generator"], *views])
+    else:
+        run(["baseline", row, *views])
+    info = json.loads((out / ("params.json" if row == "diff" else "info.json")).read_text())
     timing = json.loads((out / "timing.json").read_text())
-    scores = score_result(out / "mesh.glb", views / "transforms.json", n_input)
-    return {"case": case, "inputs": n_input, "seed": seed, "sides": scores["sides"],
-            "seen_texels": info["texture"]["seen"], "seconds": timing["seconds"],
+    scores = score_result(out, work / case / "held" / "transforms.json", METHODS[row].appearance)
+    return {"case": case, "row": row, "inputs": n_input, "seed": seed, "sides": scores["sides"],
+            "seen_texels": info.get("texture", {}).get("seen"), "seconds": timing["seconds"],
             "texture_seconds": timing.get("texture_seconds")}
 
 
 def table(rows: list[dict]) -> str:
-    """Markdown: a row per case and input count, PSNR / SSIM per side (mean over seeds)."""
-    lines = ["| case | views in | input PSNR / SSIM | seen half | unseen half |", "|---|---|---|---|---|"]
-    keys = sorted({(r["case"], r["inputs"]) for r in rows}, key=lambda k: (k[1], k[0]))
-    for case, n in keys:
-        mine = [r for r in rows if r["case"] == case and r["inputs"] == n]
+    """Markdown: a row per case, method and input count, PSNR / SSIM per side (mean over seeds)."""
+    lines = ["| case | row | views in | input PSNR / SSIM | seen half | unseen half |", "|---|---|---|---|---|---|"]
+    keys = sorted({(r["case"], r["row"], r["inputs"]) for r in rows}, key=lambda k: (k[1], k[2], k[0]))
+    for case, row, n in keys:
+        mine = [r for r in rows if (r["case"], r["row"], r["inputs"]) == (case, row, n)]
         cells = []
         for side in ("input", "seen", "unseen"):
             got = [r["sides"][side] for r in mine if side in r["sides"]]
             cells.append(f"{np.mean([g['psnr'] for g in got]):.1f} / {np.mean([g['ssim'] for g in got]):.3f}"
                          if got else "-")
-        lines.append(f"| {case} | {n} | " + " | ".join(cells) + " |")
+        lines.append(f"| {case} | {row} | {n} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -68,7 +76,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="+", default=DEV)
     ap.add_argument("--inputs", nargs="+", type=int, default=[1, 6])
-    ap.add_argument("--views", type=int, default=16, help="reference views per case (the inputs among them)")
+    ap.add_argument("--ngp", nargs="*", type=int, default=[], help="instant-NGP-style's input views (none: not run)")
+    ap.add_argument("--views", type=int, default=16, help="held (scoring) views per case")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/bench/texture")
@@ -81,8 +90,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for case in args.cases:
-            run(["synth", "--case", case, "--out", str(work / case), "--views", str(args.views)])
-        jobs = [(c, work / c, n, s, work) for c in args.cases for n in args.inputs for s in args.seeds]
+            for layout, n in (("hemi", max(args.inputs + args.ngp)), ("held", args.views)):
+                run(["synth", "--case", case, "--out", str(work / case / layout), "--views", str(n),
+                     "--layout", layout])
+        jobs = [(c, work, row, n, s) for row, counts in (("ngp", args.ngp), ("diff", args.inputs))
+                for n in counts for c in args.cases for s in args.seeds]
         with ThreadPoolExecutor(args.jobs) as pool:
             rows = list(pool.map(lambda a: one(*a), jobs))
     from ipm.io.atomic import write_json

@@ -30,7 +30,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--views", type=int, default=1, help="number of views (view 0 is the input view)")
     s.add_argument("--res", type=int, default=256, help="image width and height in pixels")
     s.add_argument("--spp", type=int, default=64, help="samples per pixel of the RGB renders")
-    s.add_argument("--layout", default="hemi", help="views: hemi (input view + hemisphere), ring (for COLMAP) or photo (hemi cameras, photograph-like JPEGs)")
+    s.add_argument("--layout", default="hemi", help="views: hemi (input view + hemisphere), ring (for COLMAP), photo (hemi cameras, photograph-like JPEGs) or held (input view + the hemisphere turned: views no row is given)")
 
     r = sub.add_parser("reconstruct", help="fit a procedural generator to masks")
     r.add_argument("--generator", required=True, help="generator name (e.g. dishes)")

@@ -103,11 +103,13 @@ def ground_truth_mesh(case: dict, lod: int | None = None):
     return v, np.asarray(f), np.asarray(labels), np.asarray(uv)
 
 
-LAYOUTS = ("hemi", "ring", "photo")
+LAYOUTS = ("hemi", "ring", "photo", "held")
 """View layouts: ``hemi`` (view 0 is the input view, the rest on a Fibonacci hemisphere; the
 diffSDF views and ours), ``ring`` (rings of at most 16 views, 22.5 degrees apart or closer,
-so neighbouring images share enough texture for SIFT matching; the COLMAP views) and ``photo``
-(the ``hemi`` cameras, photograph-like images: :func:`photo_setting`)."""
+so neighbouring images share enough texture for SIFT matching; the COLMAP views), ``photo``
+(the ``hemi`` cameras, photograph-like images: :func:`photo_setting`) and ``held`` (view 0 the
+input view, the rest the ``hemi`` hemisphere turned by half the golden angle: views between
+those any row is given, for scoring appearance on views no row saw)."""
 PHOTO_QUALITY = 88
 """JPEG quality of the ``photo`` layout's images."""
 
@@ -141,12 +143,13 @@ def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float
     """Camera-to-world matrices of ``n_views`` views around the object in ``layout``, far enough
     that the bounding sphere fills the same share of a field of view ``fov_x`` at any lens."""
     dist = 1.3 * radius / np.sin(fov_x / 2)
-    if layout in ("hemi", "photo"):
+    if layout in ("hemi", "photo", "held"):
         cams = [orbit_camera(center, dist, azimuth, elevation)]
-        golden = np.pi * (3 - np.sqrt(5))
+        golden = np.degrees(np.pi * (3 - np.sqrt(5)))
+        turn = golden / 2 if layout == "held" else 0.0
         for i in range(1, n_views):
             s = (i - 0.5) / max(n_views - 1, 1)
-            cams.append(orbit_camera(center, dist, azimuth + np.degrees(golden * i), 5.0 + 70.0 * s))
+            cams.append(orbit_camera(center, dist, azimuth + golden * i + turn, 5.0 + 70.0 * s))
     elif layout == "ring":
         n_rings = -(-n_views // 16)
         elevations = np.linspace(15.0, 60.0, n_rings) if n_rings > 1 else [30.0]

@@ -140,10 +140,11 @@ def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: s
                                                        "machine": machine, "note": note})
 
 
-def texture_step(run: str, views: str, out: str, n_input: int, row: dict, seed: int, threads: int = 1, log=None):
-    """Appearance scores (``ipm.metrics.texture``) of the textured result in folder ``run`` against
-    the colour views ``views`` (its first ``n_input`` the run's inputs), with the row's label and
-    the case's split: ``texture.json``."""
+def texture_step(run: str, views: str, out: str, n_input: int, appearance: str, row: dict, seed: int,
+                 threads: int = 1, log=None):
+    """Appearance scores (``ipm.metrics.texture``) of the result in folder ``run``, rendered by
+    ``appearance``, against the colour views ``views`` (the held layout: view 0 the case's input
+    view), with the row's label, input count and the case's split: ``texture.json``."""
     with _logged(log, threads, mitsuba=True):
         import json
 
@@ -151,7 +152,7 @@ def texture_step(run: str, views: str, out: str, n_input: int, row: dict, seed: 
         from ipm.io import write_json
         from ipm.metrics.texture import score_result
 
-        scores = score_result(Path(run) / "mesh.glb", Path(views) / "transforms.json", n_input)
+        scores = score_result(run, Path(views) / "transforms.json", appearance)
         case = json.loads((Path(views) / "ground_truth.json").read_text())
         write_json(out, {**row, "case": case["name"], "split": case_split(case), "seed": seed, "inputs": n_input,
                          **scores})

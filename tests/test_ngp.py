@@ -223,7 +223,7 @@ def test_smoke_run_writes_a_mesh_near_the_object(tmp_path, tiny3):
 
     assert resolve(METHODS["ngp"].entry) is run_ngp and METHODS["ngp"].layout == "hemi"
     info = run_ngp(tiny3 / "transforms.json", tmp_path / "a", profile="smoke", seed=1, progress=False)
-    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["info.json", "mesh.ply", "timing.json"]
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["field.npz", "info.json", "mesh.ply", "timing.json"]
     saved = json.loads((tmp_path / "a" / "info.json").read_text())
     assert saved["views"] == 3 and saved["steps"] == PROFILES["smoke"].steps and saved["colour"]
     assert saved["final_loss"] < 0.5 * saved["first_loss"] and saved["settings"]["level"] == PROFILES["smoke"].level
@@ -241,16 +241,39 @@ def test_smoke_run_writes_a_mesh_near_the_object(tmp_path, tiny3):
     assert silhouette_iou(load_mesh(tiny3 / "reference.ply"), mesh, n_views=8, res=48)["iou_mean"] > 0.8
     run_ngp(tiny3 / "transforms.json", tmp_path / "b", profile="smoke", seed=1, progress=False)
     assert np.array_equal(load_mesh(tmp_path / "b" / "mesh.ply").vertices, mesh.vertices)  # seeded
+    _field_renders_its_views(tmp_path / "a", tiny3)
+
+
+def _field_renders_its_views(run, views_path):
+    """The saved field rendered again at its input views: deterministic, and nearer the images in
+    structure than each one's flat mean colour (measured: SSIM 0.56-0.69 against 0.05-0.11, PSNR
+    1-4 dB higher)."""
+    from baselines.ngp import render_result
+    from ipm.io.views import load_photos, load_views, srgb_bytes
+    from ipm.metrics.texture import masked_scores
+
+    views = load_views(views_path / "transforms.json")
+    photos, renders = load_photos(views), render_result(run, views)
+    assert renders.shape == photos.shape and np.array_equal(renders, render_result(run, views))
+    for got, want, mask in zip(renders, photos, views.masks):
+        flat = np.broadcast_to(want[mask > 0.5].mean(0), want.shape)
+        field = masked_scores(srgb_bytes(got) / 255.0, srgb_bytes(want) / 255.0, mask)
+        mean = masked_scores(srgb_bytes(flat) / 255.0, srgb_bytes(want) / 255.0, mask)
+        assert field["ssim"] > mean["ssim"] + 0.3 and field["psnr"] > mean["psnr"]
 
 
 def test_bad_input_is_one_user_error_line(tmp_path, tiny3, capsys):
+    from baselines.ngp import render_result
     from ipm.cli import main
+    from ipm.io.views import load_views
 
     with pytest.raises(UserError, match="views"):
         run_ngp(tiny3 / "transforms.json", tmp_path / "x", profile="smoke", n_input_views=1, progress=False)
     with pytest.raises(UserError, match="unknown profile"):
         run_ngp(tiny3 / "transforms.json", tmp_path / "x", profile="fast", progress=False)
     assert set(PROFILES) == {"smoke", "default", "paper"}
+    with pytest.raises(UserError, match="no field.npz"):
+        render_result(tmp_path, load_views(tiny3 / "transforms.json"))
     code = main(["baseline", "ngp", "--views", str(tiny3 / "transforms.json"), "--out", str(tmp_path / "x"),
                  "--n-input-views", "1", "--threads", "2", "--quiet"])
     err = capsys.readouterr().err.strip()

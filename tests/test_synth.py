@@ -111,6 +111,26 @@ def test_ring_layout_keeps_neighbours_close_for_sift(n):
     assert np.degrees(np.arccos(np.clip(d.max(1), -1, 1))).max() <= 22.5 + 1e-6
 
 
+def test_held_views_lie_between_the_views_rows_are_given():
+    """The held layout's view 0 is the input view; its other 15 views are more than 10 degrees
+    from each of the 16 hemi views (instant-NGP-style's inputs; 11.1 at the closest), and from the
+    6 (ours' six-view row) more than 4, one of them within 10 (4.8)."""
+    from ipm.synth import view_cameras
+
+    centre = np.array([0.1, 0.2, -0.1])
+    held = view_cameras(centre, 0.6, 16, 10.0, 22.0, layout="held")
+
+    def towards(c2w):
+        d = c2w[:, :3, 3] - centre
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    for n, floor in ((16, 10.0), (6, 4.0)):
+        hemi = view_cameras(centre, 0.6, n, 10.0, 22.0, layout="hemi")
+        np.testing.assert_allclose(held[0], hemi[0])
+        angle = np.degrees(np.arccos(np.clip(towards(held[1:]) @ towards(hemi).T, -1, 1))).min(1)
+        assert angle.min() > floor and (angle < 10.0).sum() <= (0 if n == 16 else 1)
+
+
 def test_unknown_layout_is_refused():
     from ipm.synth import view_cameras
 

@@ -148,7 +148,7 @@ def run_ngp(views_path, out, profile: str = "default", seed: int = 0, progress: 
 
     data, bg = training_data(views, lo, hi)
     t_data = time.perf_counter() - t0
-    params, stats = train.fit(data, bg, (hi - lo) / float((hi - lo).max()), prof, seed, progress)
+    params, bits, stats = train.fit(data, bg, (hi - lo) / float((hi - lo).max()), prof, seed, progress)
     t_mesh = time.perf_counter()
     sigma = train.density_grid(params, lo, hi, prof)
     verts, faces = extract_surface(sigma, lo, hi, prof.level, inside_positive=True)
@@ -160,4 +160,52 @@ def run_ngp(views_path, out, profile: str = "default", seed: int = 0, progress: 
             "components_dropped": dropped, "data_seconds": t_data,
             "mesh_seconds": time.perf_counter() - t_mesh, **stats}
     info["cpu_seconds"] = time.process_time() - cpu0
-    return write_result(out, verts, faces, t0, info)
+    extra = {FIELD: lambda path: save_field(path, params, bits)} if bg is not None else None
+    return write_result(out, verts, faces, t0, info, extra)
+
+
+FIELD = "field.npz"
+"""A run's fitted field (with colour): the encoding's table, the MLPs' weights and the last
+occupancy bits, for rendering it at other views (:func:`render_result`)."""
+
+
+def save_field(path, params, bits: np.ndarray) -> None:
+    """The field's parameters (leaves in ``jax.tree_util`` order) and occupancy bits as ``path``."""
+    import jax
+
+    leaves = jax.tree_util.tree_leaves(params)
+    with open(path, "wb") as fh:
+        np.savez_compressed(fh, bits=np.asarray(bits), **{f"leaf_{i:03d}": np.asarray(x) for i, x in enumerate(leaves)})
+
+
+def render_result(run, views) -> np.ndarray:
+    """A run's radiance field (its folder's field.npz and info.json) volume-rendered at every camera
+    of ``views`` (``ipm.io.views.Views``) over its background colour, as linear RGB (n, H, W, 3):
+    its appearance, as the workflow scores it (``ipm.metrics.texture``)."""
+    import json
+    from pathlib import Path
+
+    import jax
+
+    from baselines.ngp import encoding as enc
+    from baselines.ngp import train
+    from baselines.ngp.render import unit_rays
+    from ipm.errors import UserError
+    from ipm.io.views import linear_from_srgb
+
+    run = Path(run)
+    if not (run / FIELD).is_file():
+        raise UserError(f"{run}: no {FIELD} (a run on views without colour has no appearance)")
+    info = json.loads((run / "info.json").read_text())
+    prof = PROFILES[info["profile"]]
+    with np.load(run / FIELD) as saved:
+        leaves = [saved[f"leaf_{i:03d}"] for i in range(len(saved.files) - 1)]
+        bits = saved["bits"]
+    shape = enc.init_field(prof.grid, prof.hidden, jax.random.PRNGKey(0), prof.view_dependent)
+    params = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(shape), leaves)
+    lo, hi = (np.asarray(b, np.float64) for b in info["box"])
+    rays = unit_rays(views.c2w, views.fov_x, views.width, views.height, lo, hi)
+    srgb = train.render_images(params, bits, (hi - lo) / float((hi - lo).max()), rays,
+                               np.asarray(info["background"], np.float32), (len(views), views.height, views.width),
+                               prof, info["seed"])
+    return linear_from_srgb(np.clip(srgb, 0.0, 1.0).astype(np.float64))

@@ -95,8 +95,8 @@ def make_occupancy_update(prof, ext: tuple):
 
 
 def fit(data: dict, bg, ext: np.ndarray, prof, seed: int, progress: bool = False):
-    """The fitted field's parameters and the run's statistics (losses, the final ones averaged over
-    the last twentieth of the steps; occupancy, sample spacing, times)."""
+    """The fitted field's parameters, its last occupancy bits and the run's statistics (losses, the
+    final ones averaged over the last twentieth of the steps; occupancy, sample spacing, times)."""
     t0 = time.perf_counter()
     key = jax.random.PRNGKey(seed)
     key, kinit = jax.random.split(key)
@@ -138,7 +138,7 @@ def fit(data: dict, bg, ext: np.ndarray, prof, seed: int, progress: bool = False
              "occupied_share_final": float(occupied[-1]) if occupied else 1.0,
              "loss_trace": [round(float(x), 6) for x in rows[:: max(1, len(rows) // 50), 0]],
              "compile_and_first_step_seconds": t_first, "train_seconds": time.perf_counter() - t0}
-    return params, stats
+    return params, np.asarray(bits), stats
 
 
 def density_grid(params, lo: np.ndarray, hi: np.ndarray, prof, chunk: int = 1 << 15) -> np.ndarray:
@@ -154,3 +154,36 @@ def density_grid(params, lo: np.ndarray, hi: np.ndarray, prof, chunk: int = 1 <<
     padded = np.concatenate([points, np.zeros((-n % chunk, 3), np.float32)])
     run = jax.jit(functools.partial(densities, prof, chunk=chunk))
     return np.asarray(run(params, jnp.asarray(padded)))[:n].reshape(shape)
+
+
+@functools.lru_cache(maxsize=8)
+def make_render(prof, ext: tuple):
+    """The jitted ``(params, bits, batch, key) -> (alpha (R,), colour (R, 3))`` of a batch of
+    ``prof.rays`` rays, sampled as in training."""
+    ext = np.asarray(ext, np.float32)
+
+    def run(params, bits, batch, key):
+        alpha, colour, _, _ = render_rays(params, bits, ext, batch, key, prof)
+        return alpha, colour
+
+    return jax.jit(run)
+
+
+def render_images(params, bits, ext: np.ndarray, rays, bg: np.ndarray, shape: tuple, prof, seed: int = 0):
+    """The field's colour composited over ``bg`` at every pixel of ``shape`` (views, height, width)
+    whose ray (``render.UnitRays``) crosses the box, ``bg`` elsewhere: (views, height, width, 3)
+    in the training images' values (sRGB), ``prof.rays`` rays a batch."""
+    run = make_render(prof, tuple(float(e) for e in ext))
+    n, size = len(rays.t0), prof.rays
+    pad = -n % size
+    arrays = {k: np.concatenate([getattr(rays, k), np.repeat(getattr(rays, k)[:1], pad, 0)])
+              for k in ("origin", "direction", "t0", "t1")}
+    key = jax.random.PRNGKey(seed)
+    out = np.zeros((n + pad, 3), np.float32)
+    for start in range(0, n + pad, size):
+        key, kr = jax.random.split(key)
+        alpha, colour = run(params, bits, {k: v[start:start + size] for k, v in arrays.items()}, kr)
+        out[start:start + size] = np.asarray(colour) + (1.0 - np.asarray(alpha))[:, None] * bg
+    images = np.tile(np.asarray(bg, np.float32), (int(np.prod(shape)), 1))
+    images[rays.pixel] = out[:n]
+    return images.reshape(*shape, 3)

@@ -61,9 +61,11 @@ class Method:
     withholds_camera: bool = False
     """The diff path with the input's camera withheld (the photo rows): its start is the
     camera-hidden regressor's (``learned_photo``) where the profile asks for a learned camera."""
-    paints: bool = False
-    """Its results wear textures painted from the input's colour views (``ipm.texture``): the
-    workflow scores their appearance (``ipm.metrics.texture``)."""
+    appearance: str | None = None
+    """``module:function(run, views)`` rendering a result folder's appearance at ``views``
+    (``ipm.io.views.Views``) as linear RGB (n, H, W, 3) under the reference lighting: ours' painted
+    textures, instant-NGP-style's radiance field. The workflow scores such rows' appearance
+    (``ipm.metrics.texture``)."""
     scored_by: str = "iou_mean"
     """Table 1's headline metric for its rows: ``shape_iou`` where the camera is withheld (one
     uncalibrated photo fixes neither scale against distance nor a cup's lens), the world IoU beside it."""
@@ -120,7 +122,8 @@ def row_label(name: str, views: int) -> str:
 
 
 _DIFF = dict(layout="hemi", uses_generator=True, differentiable_only=True, length=1, compiles=True)
-declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF, paints=True)
+declare("diff", "ours (diff, {views})", "ipm.methods.diff:run_diff", **_DIFF,
+        appearance="ipm.metrics.texture:render_textured")
 _PHOTO = dict(_DIFF, withholds_camera=True, scored_by="shape_iou")
 declare("photo", "ours (diff, camera unknown, {views})", "ipm.methods.diff:run_photo", **_PHOTO)
 declare("photo_fov", "ours (diff, camera unknown, FOV given, {views})", "ipm.methods.diff:run_photo_fov", **_PHOTO)
@@ -139,7 +142,8 @@ declare("diffsdf", "diffSDF-style ({views})", "baselines.diffsdf:run_diffsdf", l
 declare("visual_hull", "visual hull ({views})", "baselines.visual_hull:run_visual_hull", layout="hemi", seeded=False)
 declare("colmap_known", "COLMAP known poses ({views})", "baselines.colmap:run_colmap_known", layout="ring")
 declare("colmap_sfm", "COLMAP SfM ({views})", "baselines.colmap:run_colmap_sfm", layout="ring")
-declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi", length=2)
+declare("ngp", "instant-NGP-style ({views})", "baselines.ngp:run_ngp", layout="hemi", length=2,
+        appearance="baselines.ngp:render_result")
 declare("occnet", "occupancy network ({views})", "baselines.occnet:run_occnet", layout="hemi",
         learns_generator=True, prepare_entry="baselines.occnet:prepare",
         shipped="baselines.occnet:weights/{generator}.json")

@@ -64,21 +64,43 @@ def read_textured_glb(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.concatenate(vertices), np.concatenate(faces), np.concatenate(labels), np.concatenate(uv), textures
 
 
-def score_result(mesh_glb: str | Path, views_path: str | Path, n_input: int, spp: int = 64) -> dict:
-    """A textured result (its mesh.glb, world frame) scored against every view of ``views_path``
-    (the reference's colour views under the reference lighting): per view its side and scores,
-    and the mean per side."""
-    from ipm.io.views import load_photos, load_views, srgb_bytes
+def render_textured(run: str | Path, views, spp: int = 64) -> np.ndarray:
+    """Linear RGB renders (n, H, W, 3) of a textured result (its folder's mesh.glb, world frame) by
+    Mitsuba under the reference lighting from every camera of ``views`` (``ipm.io.views.Views``)."""
     from ipm.render.textured import render_painted
 
-    vertices, faces, labels, uv, textures = read_textured_glb(mesh_glb)
+    vertices, faces, labels, uv, textures = read_textured_glb(Path(run) / "mesh.glb")
+    return render_painted(vertices, faces, labels, uv, textures, views.c2w, views.fov_x, views.width,
+                          views.height, spp)
+
+
+def look_at_centre(c2w: np.ndarray) -> np.ndarray:
+    """The point nearest to every camera's optical axis (least squares; the object's centre for
+    views that orbit it)."""
+    a, b = np.zeros((3, 3)), np.zeros(3)
+    for m in c2w:
+        d = -m[:3, 2] / np.linalg.norm(m[:3, 2])
+        p = np.eye(3) - np.outer(d, d)
+        a += p
+        b += p @ m[:3, 3]
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def score_result(run: str | Path, views_path: str | Path, appearance: str = "ipm.metrics.texture:render_textured",
+                 n_input: int = 1) -> dict:
+    """A result (its folder) rendered by ``appearance`` (``module:function(run, views)`` -> linear
+    RGB (n, H, W, 3): a method's :attr:`ipm.methods.Method.appearance`) and scored against every view
+    of ``views_path`` (the reference's colour views under the reference lighting, its first
+    ``n_input`` the inputs): per view its side and scores, and the mean per side."""
+    from ipm.io.views import load_photos, load_views, srgb_bytes
+    from ipm.methods import resolve
+
     views = load_views(views_path)
     if views.lighting != "reference":
         raise UserError(f"{views_path}: scores need colour views under the reference lighting")
     reference = load_photos(views)
-    renders = render_painted(vertices, faces, labels, uv, textures, views.c2w, views.fov_x, views.width,
-                             views.height, spp)
-    side = sides(views.c2w, 0.5 * (vertices.min(0) + vertices.max(0)), n_input)
+    renders = resolve(appearance)(run, views)
+    side = sides(views.c2w, look_at_centre(views.c2w), n_input)
     per_view = []
     for i in range(len(views)):
         got, want = srgb_bytes(renders[i]) / 255.0, srgb_bytes(reference[i]) / 255.0

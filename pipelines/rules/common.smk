@@ -31,7 +31,7 @@ wildcard_constraints:
     name="[a-z0-9_]+",
     method="[a-z0-9_]+",
     generator="[a-z0-9_]+",
-    layout="hemi|ring|photo",
+    layout="hemi|ring|photo|held",
     n="[0-9]+",
     mask="[a-z0-9]+",
 
@@ -309,18 +309,24 @@ def texture_views():
 
 
 def texture_views_dir(wildcards):
-    """The case's colour views in the hemi layout that its textured runs are scored on."""
-    return f"results/synth/{wildcards.case}/hemi{texture_views()}"
+    """The case's colour views in the held layout (the input view, then views no row is given)
+    that the appearance of its runs is scored on."""
+    return f"results/synth/{wildcards.case}/held{texture_views()}"
+
+
+def method_appearance(wildcards):
+    """The ``module:function`` that renders a row's result for its appearance scores."""
+    return METHODS[method_of(wildcards)["name"]].appearance
 
 
 def all_texture_scores():
-    """Appearance scores of every run of an untagged row that paints its results (not on degraded
-    masks), where its inputs are among the scoring views."""
+    """Appearance scores of every run of an untagged row with an appearance (ours' textures,
+    instant-NGP-style's field) on the true masks."""
     n = texture_views()
     return [
         f"results/evaluate/{row_id(m)}/{case}/s{seed}/texture.json"
         for m in config["methods"]
-        if n and METHODS[m["name"]].paints and not m.get("mask") and not m.get("tag") and m["views"] <= n
+        if n and METHODS[m["name"]].appearance and not m.get("mask") and not m.get("tag")
         for case in method_cases(m)
         for seed in method_seeds(m, case)
     ]

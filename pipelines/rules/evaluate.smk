@@ -90,5 +90,6 @@ rule texture:
     params:
         row=row_info,
         n_input=method_views,
+        appearance=method_appearance,
     script:
         "../scripts/texture.py"
