@@ -54,21 +54,59 @@ def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
     scores = score_result(out, work / case / "held" / "transforms.json", METHODS[row].appearance)
     return {"case": case, "row": row, "inputs": n_input, "seed": seed, "sides": scores["sides"],
             "seen_texels": info.get("texture", {}).get("seen"), "seconds": timing["seconds"],
-            "texture_seconds": timing.get("texture_seconds")}
+            "texture_seconds": timing.get("texture_seconds"), "refine": "default"}
+
+
+def schedule(text: str):
+    """A refinement from its spelling: ``none``, or stages ``RES:STEPS,RES:STEPS``."""
+    from ipm.texture import Refinement
+
+    if text == "none":
+        return None
+    return Refinement(stages=tuple(tuple(int(x) for x in stage.split(":")) for stage in text.split(",")))
+
+
+def repaint(case: str, work: Path, n_input: int, seed: int, variant: str) -> dict:
+    """Ours' fit of ``case`` painted again with the refinement ``variant`` and scored as :func:`one`."""
+    import time
+
+    from ipm.generators import get_generator
+    from ipm.generators.base import Mesh
+    from ipm.io.views import load_photos, load_views
+    from ipm.metrics.texture import read_textured_glb, score_renders
+    from ipm.render.textured import render_painted
+    from ipm.synth import load_case
+    from ipm.texture import paint
+
+    gen = get_generator(load_case(case)["generator"])
+    v, f, labels, uv, _ = read_textured_glb(work / f"{case}_diff{n_input}v_s{seed}" / "mesh.glb")
+    mesh = Mesh(v, f, np.zeros_like(v), uv, labels, gen.part_names)
+    views = load_views(work / case / "hemi" / "transforms.json").first(n_input)
+    t0 = time.perf_counter()
+    textures, _ = paint(gen, mesh, load_photos(views), views.masks, views.c2w, views.fov_x, views.lighting,
+                        refinement=schedule(variant), seed=seed)
+    seconds = time.perf_counter() - t0
+    held = load_views(work / case / "held" / "transforms.json")
+    renders = render_painted(v, f, labels, uv, textures, held.c2w, held.fov_x, held.width, held.height)
+    return {"case": case, "row": "diff", "inputs": n_input, "seed": seed, "refine": variant,
+            "sides": score_renders(renders, held)["sides"], "texture_seconds": seconds}
 
 
 def table(rows: list[dict]) -> str:
-    """Markdown: a row per case, method and input count, PSNR / SSIM per side (mean over seeds)."""
-    lines = ["| case | row | views in | input PSNR / SSIM | seen half | unseen half |", "|---|---|---|---|---|---|"]
-    keys = sorted({(r["case"], r["row"], r["inputs"]) for r in rows}, key=lambda k: (k[1], k[2], k[0]))
-    for case, row, n in keys:
-        mine = [r for r in rows if (r["case"], r["row"], r["inputs"]) == (case, row, n)]
+    """Markdown: a row per case, method, input count and refinement, PSNR / SSIM per side (mean
+    over seeds)."""
+    lines = ["| case | row | views in | refinement | input PSNR / SSIM | seen half | unseen half |",
+             "|---|---|---|---|---|---|---|"]
+    keys = sorted({(r["case"], r["row"], r["inputs"], r["refine"]) for r in rows},
+                  key=lambda k: (k[1], k[2], k[3], k[0]))
+    for case, row, n, variant in keys:
+        mine = [r for r in rows if (r["case"], r["row"], r["inputs"], r["refine"]) == (case, row, n, variant)]
         cells = []
         for side in ("input", "seen", "unseen"):
             got = [r["sides"][side] for r in mine if side in r["sides"]]
             cells.append(f"{np.mean([g['psnr'] for g in got]):.1f} / {np.mean([g['ssim'] for g in got]):.3f}"
                          if got else "-")
-        lines.append(f"| {case} | {row} | {n} | " + " | ".join(cells) + " |")
+        lines.append(f"| {case} | {row} | {n} | {variant if row == 'diff' else '-'} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -78,6 +116,8 @@ def main() -> None:
     ap.add_argument("--inputs", nargs="+", type=int, default=[1, 6])
     ap.add_argument("--ngp", nargs="*", type=int, default=[], help="instant-NGP-style's input views (none: not run)")
     ap.add_argument("--views", type=int, default=16, help="held (scoring) views per case")
+    ap.add_argument("--refine", nargs="*", default=[],
+                    help="ours' fits painted again with these refinements (none, or RES:STEPS,RES:STEPS)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/bench/texture")
@@ -97,6 +137,8 @@ def main() -> None:
                 for n in counts for c in args.cases for s in args.seeds]
         with ThreadPoolExecutor(args.jobs) as pool:
             rows = list(pool.map(lambda a: one(*a), jobs))
+        for variant in args.refine:  # one at a time: their seconds are the stage's own
+            rows += [repaint(c, work, n, s, variant) for c in args.cases for n in args.inputs for s in args.seeds]
     from ipm.io.atomic import write_json
 
     write_json(out / "texture.json", rows)

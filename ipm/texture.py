@@ -7,6 +7,8 @@
    squarely they see the point and how well it is lit.
 2. Fill: a texel no view sees takes the mean of the seen texels of its symmetry group (the
    generator's ``texture_symmetry``: a dish's rows round its axis), else its part's mean.
+3. Refinement (under the reference lighting): Mitsuba's differentiable renderer and Adam fit a
+   correction of the textures to the input views, coarse to fine (:func:`refine`).
 """
 from __future__ import annotations
 
@@ -21,6 +23,22 @@ TEXTURE_RES = 256
 """Texels across a part's square texture."""
 MIN_SHADING = 0.05
 """Shading (a white mesh's linear radiance) under which a pixel says too little of the albedo."""
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """The refinement's schedule: per stage the resolution of the correction it fits (bilinearly
+    enlarged onto the texture) and its steps (one input view each, in turn); Adam's rate and
+    Mitsuba's samples a pixel."""
+
+    stages: tuple[tuple[int, int], ...] = ((64, 20), (256, 20))
+    lr: float = 0.02
+    spp: int = 8
+
+
+REFINEMENT: Refinement | None = None
+"""The diff path's refinement (docs/decisions.md, "Texture refinement"; None: projection and fill
+alone)."""
 
 
 @dataclass
@@ -171,12 +189,13 @@ def pad(texture: np.ndarray, covered: tuple[np.ndarray, np.ndarray]) -> np.ndarr
 
 
 def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,
-          lighting: str | None = "reference", res: int = TEXTURE_RES, spp: int = 32) -> tuple[dict, dict]:
+          lighting: str | None = "reference", res: int = TEXTURE_RES, spp: int = 32,
+          refinement: Refinement | None = None, seed: int = 0) -> tuple[dict, dict]:
     """Every part's texture {part index: (res, res, 3) linear albedo} of a fitted ``mesh`` (world
     frame, the generator's UVs) from linear photos (n, H, W, 3) with their masks and cameras, and
     per part the share of its texels some view saw. Under the ``reference`` lighting the photos
-    are divided by its shading; under an unknown one (None) the texture keeps the photos' colours,
-    their light and shade with them."""
+    are divided by its shading and the textures then refined (``refinement``; None: not); under
+    an unknown one (None) the texture keeps the photos' colours, their light and shade with them."""
     from ipm.render.textured import render_painted
 
     if mesh.uv is None:
@@ -198,7 +217,77 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
         groups = generator.texture_symmetry(part, res)
         textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0), (tx.rows, tx.cols))
         seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
+    if lighting == "reference" and refinement is not None and refinement.stages:
+        textures = refine(mesh, textures, photos, masks, c2w, fov_x, refinement, seed)
     return textures, seen_share
+
+
+def _enlarge(small: int, large: int):
+    """Bilinear enlargement of a (small, small, 3) image to (large, large, 3) (texel centres,
+    edges clamped) as four gathers: per corner the flat indices into the small image and the
+    weights, each over the large image's flat (large * large * 3) values."""
+    x = (np.arange(large) + 0.5) * small / large - 0.5
+    lo = np.clip(np.floor(x).astype(np.int64), 0, small - 1)
+    hi = np.minimum(lo + 1, small - 1)
+    w = np.clip(x - lo, 0.0, 1.0)
+    out = []
+    for rows, wr in ((lo, 1 - w), (hi, w)):
+        for cols, wc in ((lo, 1 - w), (hi, w)):
+            index = (rows[:, None] * small + cols[None, :])[..., None] * 3 + np.arange(3)
+            weight = np.broadcast_to((wr[:, None] * wc[None, :])[..., None], index.shape)
+            out.append((index.ravel().astype(np.uint32), weight.ravel().astype(np.float32)))
+    return out
+
+
+def refine(mesh, textures: dict, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,
+           refinement: Refinement = Refinement(), seed: int = 0) -> dict:
+    """``textures`` (part -> (res, res, 3) linear albedo) refined to the input views under the
+    reference lighting: per stage a correction at the stage's resolution, bilinearly enlarged and
+    added to the textures (clipped to [0, 1]), is fitted by Adam to the masked (rim-eroded) squared
+    error of Mitsuba's differentiable renders (prb) against the photos, one view a step, then
+    folded in; coarse stages first, so what one view says spreads as smooth corrections before
+    texel-sized ones."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from ipm.render.textured import lit_scene, painted_shapes
+
+    n, h, w = photos.shape[:3]
+    scene = lit_scene(painted_shapes(mesh.vertices, mesh.faces, mesh.labels, mesh.uv, textures), c2w, fov_x, w, h,
+                      "prb")
+    params = mi.traverse(scene)
+    keys = {k: f"part_{k}.bsdf.reflectance.data" for k in textures}
+    shape = {k: tuple(textures[k].shape) for k in textures}
+    # numpy buffers kept alive: a Dr.Jit array made from one may share its memory
+    held = {k: np.ascontiguousarray(textures[k][::-1], np.float32).ravel() for k in textures}
+    base = {k: mi.Float(held[k]) for k in textures}
+    weights = [np.repeat(_eroded(m)[..., None], 3, -1).astype(np.float32) for m in masks]
+    targets = [np.ascontiguousarray(p, np.float32) for p in photos]
+    step = 0
+    for res, steps in refinement.stages:
+        maps = {k: [(mi.UInt32(i), mi.Float(wt)) for i, wt in _enlarge(res, shape[k][0])] for k in textures}
+        opt = mi.ad.Adam(lr=refinement.lr)
+        for k in textures:
+            opt[keys[k]] = mi.Float(np.zeros(res * res * 3, np.float32))
+
+        def full(k):
+            delta = opt[keys[k]]
+            return dr.clip(base[k] + sum(dr.gather(mi.Float, delta, i) * wt for i, wt in maps[k]), 0.0, 1.0)
+
+        for _ in range(steps):
+            view = step % n
+            for k in textures:
+                params[keys[k]] = mi.TensorXf(full(k), shape[k])
+            params.update()
+            image = mi.render(scene, params, sensor=view, spp=refinement.spp, seed=seed * 100003 + step)
+            if weights[view].sum() > 0:
+                loss = dr.sum(dr.square(image - mi.TensorXf(targets[view])) * mi.TensorXf(weights[view]))
+                dr.backward(loss / float(weights[view].sum()))
+                opt.step()
+            step += 1
+        base = {k: dr.detach(full(k)) for k in textures}
+        dr.eval(base)
+    return {k: np.array(base[k], np.float64).reshape(shape[k])[::-1].copy() for k in textures}
 
 
 def read_textures(folder, part_names: tuple[str, ...]) -> dict[int, np.ndarray]:

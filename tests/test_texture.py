@@ -60,11 +60,29 @@ def painted_plane(mitsuba_cpu):
 
     mesh = Mesh(PLANE, PLANE_FACES, vertex_normals(PLANE, PLANE_FACES), SQUARE, np.zeros(2, int), ("body",))
     textures, seen = paint(Flat(), mesh, photo, mask.astype(np.float32), c2w, 0.9, "reference", 32, 64)
-    return albedo, textures[0], seen[0], photo
+    return albedo, textures[0], seen[0], photo, mesh, mask, c2w
+
+
+def test_refinement_pulls_a_wrong_texture_to_the_photo(painted_plane):
+    """From an albedo off by +0.15 everywhere, the refinement (a coarse stage, then texel-sized)
+    fitted to the one photo brings the covered texels back: their error under a fifth of it,
+    deterministically."""
+    from ipm.texture import Refinement, refine
+
+    albedo, _, _, photo, mesh, mask, c2w = painted_plane
+    wrong = {0: np.clip(albedo + 0.15, 0.0, 1.0)}
+    schedule = Refinement(stages=((8, 30), (32, 30)), lr=0.02, spp=16)
+    fixed = refine(mesh, wrong, photo, mask.astype(np.float32), c2w, 0.9, schedule)
+    inner = (slice(4, 12), slice(4, 28)), (slice(20, 28), slice(4, 28))
+    before = np.mean([np.abs(wrong[0][r, c] - albedo[r, c]).mean() for r, c in inner])
+    after = np.mean([np.abs(fixed[0][r, c] - albedo[r, c]).mean() for r, c in inner])
+    assert after < before / 5  # measured 0.022 from 0.15
+    again = refine(mesh, wrong, photo, mask.astype(np.float32), c2w, 0.9, schedule)
+    np.testing.assert_array_equal(fixed[0], again[0])
 
 
 def test_paint_recovers_the_albedo_under_the_reference_lighting(painted_plane):
-    albedo, texture, seen, photo = painted_plane
+    albedo, texture, seen, photo = painted_plane[:4]
     assert seen > 0.8
     inner = (slice(4, 12), slice(4, 28)), (slice(20, 28), slice(4, 28))
     for rows, cols in inner:  # away from the colour edge and the rim

@@ -114,14 +114,14 @@ def painted(generator, mesh, views: Views):
     """``ipm.texture.paint`` of ``mesh`` from the views' colour images and masks, or None where
     they have none or their camera is an estimate."""
     from ipm.io.views import load_photos
-    from ipm.texture import paint
+    from ipm.texture import REFINEMENT, paint
 
     if not views.posed or views.camera is not None:
         return None
     photos = load_photos(views)
     if photos is None or views.masks is None:
         return None
-    return paint(generator, mesh, photos, views.masks, views.c2w, views.fov_x, views.lighting)
+    return paint(generator, mesh, photos, views.masks, views.c2w, views.fov_x, views.lighting, refinement=REFINEMENT)
 
 
 def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:

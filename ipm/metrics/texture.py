@@ -92,14 +92,21 @@ def score_result(run: str | Path, views_path: str | Path, appearance: str = "ipm
     RGB (n, H, W, 3): a method's :attr:`ipm.methods.Method.appearance`) and scored against every view
     of ``views_path`` (the reference's colour views under the reference lighting, its first
     ``n_input`` the inputs): per view its side and scores, and the mean per side."""
-    from ipm.io.views import load_photos, load_views, srgb_bytes
+    from ipm.io.views import load_views
     from ipm.methods import resolve
 
     views = load_views(views_path)
     if views.lighting != "reference":
         raise UserError(f"{views_path}: scores need colour views under the reference lighting")
+    return score_renders(resolve(appearance)(run, views), views, n_input)
+
+
+def score_renders(renders: np.ndarray, views, n_input: int = 1) -> dict:
+    """Linear renders (n, H, W, 3) scored against the colour views ``views`` (``ipm.io.views.Views``,
+    its first ``n_input`` the inputs): per view its side and scores, and the mean per side."""
+    from ipm.io.views import load_photos, srgb_bytes
+
     reference = load_photos(views)
-    renders = resolve(appearance)(run, views)
     side = sides(views.c2w, look_at_centre(views.c2w), n_input)
     per_view = []
     for i in range(len(views)):

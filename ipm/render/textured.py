@@ -78,17 +78,26 @@ def set_mesh_buffers(mesh, v, f) -> None:
     mp.update()
 
 
-def _render_scene(shapes: dict, c2w, fov_x, width, height, spp):
-    """Render ``shapes`` (name -> Mitsuba shape) under the reference lighting from each camera."""
+def lit_scene(shapes: dict, c2w, fov_x, width, height, integrator: str = "path"):
+    """A Mitsuba scene of ``shapes`` (name -> Mitsuba shape) under the reference lighting (a dim
+    constant sky and a sun) with a sensor per camera; ``integrator`` path (rendering) or prb
+    (differentiable in the materials), three bounces."""
     import mitsuba as mi
 
-    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 3}, **shapes,
+    scene = {"type": "scene", "integrator": {"type": integrator, "max_depth": 3}, **shapes,
              "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.35}},
              "sun": {"type": "directional", "direction": [-0.4, -1.0, -0.3],
                      "irradiance": {"type": "rgb", "value": 2.5}}}
     for i, m in enumerate(c2w):
         scene[f"sensor_{i:03d}"] = sensor_dict(m, fov_x, width, height)
-    scene = mi.load_dict(scene)
+    return mi.load_dict(scene)
+
+
+def _render_scene(shapes: dict, c2w, fov_x, width, height, spp):
+    """Render ``shapes`` (name -> Mitsuba shape) under the reference lighting from each camera."""
+    import mitsuba as mi
+
+    scene = lit_scene(shapes, c2w, fov_x, width, height)
     return np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=i)) for i in range(len(c2w))])
 
 
@@ -96,9 +105,15 @@ def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray,
                    height: int, spp: int = 64) -> np.ndarray:
     """Linear RGB renders (n, height, width, 3) under the reference lighting of a mesh whose part
     k wears ``textures[k]`` (res, res, 3) linear albedo on its UVs (``uv`` (F, 3, 2)); a part
-    without one is white (the renders are then its shading). A texture is an image as glTF reads
-    one (its first row at v = 1); Mitsuba's bitmap puts its first row at v = 0, so it gets it
-    upside down."""
+    without one is white (the renders are then its shading)."""
+    return _render_scene(painted_shapes(vertices, faces, labels, uv, textures), c2w, fov_x, width, height, spp)
+
+
+def painted_shapes(vertices, faces, labels, uv, textures: dict) -> dict:
+    """Mitsuba meshes ``part_K`` of a part-labelled mesh, part k wearing ``textures[k]`` (see
+    :func:`render_painted`; white without one). A texture is an image as glTF reads one (its first
+    row at v = 1); Mitsuba's bitmap puts its first row at v = 0, so it gets it upside down: its
+    parameter ``part_K.bsdf.reflectance.data`` holds it so."""
     import mitsuba as mi
 
     faces, labels = np.asarray(faces), np.asarray(labels)
@@ -114,7 +129,7 @@ def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray,
         mi.traverse(mesh)["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
         set_mesh_buffers(mesh, v, f)
         shapes[f"part_{k}"] = mesh
-    return _render_scene(shapes, c2w, fov_x, width, height, spp)
+    return shapes
 
 
 def _bsdf_props(texture: np.ndarray):
