@@ -7,9 +7,12 @@ field as it is) and scored against every held view (``ipm.metrics.texture``: mas
 in sRGB) on the input view, the half of the sphere it sees and the other half.
 
     .venv/bin/python bench/texture.py [--cases cup_1 cup_2] [--inputs 1 6] [--ngp 16] [--views 16]
-        [--seeds 0] [--jobs 2] [--out results/bench/texture]
+        [--seeds 0] [--jobs 2] [--refine none 64:20,256:20] [--repeat 3] [--threads 2]
+        [--work DIR] [--out results/bench/texture]
 
-A fit runs as ``ipm reconstruct`` / ``ipm baseline ngp`` on one thread, ``--jobs`` at a time.
+A fit runs as ``ipm reconstruct`` / ``ipm baseline ngp`` on one thread, ``--jobs`` at a time;
+``--refine`` paints ours' fits again with each refinement (``ipm.texture.Refinement``), one at a
+time on ``--threads``, and times the stage.
 Tune nothing on what it prints for test cases: run it on dev cases (the defaults) to choose, on
 test cases to report.
 """
@@ -45,7 +48,9 @@ def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
     out = work / f"{case}_{row}{n_input}v_s{seed}"
     views = ["--views", str(work / case / "hemi" / "transforms.json"), "--n-input-views", str(n_input),
              "--seed", str(seed), "--threads", "1", "--out", str(out), "--quiet"]
-    if row == "diff":
+    if (out / "timing.json").is_file():
+        pass  # a kept work folder's fit
+    elif row == "diff":
         run(["reconstruct", "--generator", load_case(case)["generator"], *views])
     else:
         run(["baseline", row, *views])
@@ -121,15 +126,20 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/bench/texture")
+    ap.add_argument("--work", default=None, help="keep the views and fits here (and reuse those it holds)")
+    ap.add_argument("--repeat", type=int, default=1, help="repaints per fit and refinement (for their times)")
+    ap.add_argument("--threads", type=int, default=1, help="threads of the repaints (each fit takes one)")
     args = ap.parse_args()
     from ipm.runtime import configure_threads, set_mitsuba_variant
 
-    configure_threads(1, "cpu")
-    set_mitsuba_variant("cpu", 1)
+    configure_threads(args.threads, "cpu")
+    set_mitsuba_variant("cpu", args.threads)
     out = Path(args.out)
     with tempfile.TemporaryDirectory() as tmp:
-        work = Path(tmp)
+        work = Path(args.work or tmp)
         for case in args.cases:
+            if (work / case / "held").is_dir():  # a kept work folder: its views and fits are reused
+                continue
             for layout, n in (("hemi", max(args.inputs + args.ngp)), ("held", args.views)):
                 run(["synth", "--case", case, "--out", str(work / case / layout), "--views", str(n),
                      "--layout", layout])
@@ -138,7 +148,8 @@ def main() -> None:
         with ThreadPoolExecutor(args.jobs) as pool:
             rows = list(pool.map(lambda a: one(*a), jobs))
         for variant in args.refine:  # one at a time: their seconds are the stage's own
-            rows += [repaint(c, work, n, s, variant) for c in args.cases for n in args.inputs for s in args.seeds]
+            rows += [repaint(c, work, n, s, variant) for c in args.cases for n in args.inputs for s in args.seeds
+                     for _ in range(args.repeat)]
     from ipm.io.atomic import write_json
 
     write_json(out / "texture.json", rows)
