@@ -71,3 +71,21 @@ def test_wireframe_draws_only_the_visible_edges():
     alone = wireframe(front, cams, 96)
     assert np.allclose(wireframe(trimesh.util.concatenate([front, hidden]), cams, 96), alone, atol=1e-6)
     assert not np.allclose(wireframe(trimesh.util.concatenate([front, beside]), cams, 96), alone, atol=1e-3)
+
+
+def test_a_textured_result_wears_its_textures(tmp_path, mitsuba_cpu):
+    """A result folder with a textured mesh.glb (a red body, a blue handle) is drawn in them, not
+    in the part colours (a grey body)."""
+    from ipm.generators import get_generator
+    from ipm.methods.results import write_result
+
+    gen = get_generator("dishes")
+    mesh = gen.mesh(gen.presets["mug"], 0)
+    red, blue = np.tile([0.8, 0.05, 0.05], (8, 8, 1)), np.tile([0.05, 0.05, 0.8], (8, 8, 1))
+    write_result(tmp_path / "r", mesh, {"generator": "dishes"}, {"seconds": 1.0}, textures={0: red, 1: blue})
+    out = tmp_path / "gallery.png"
+    gallery_sheet(str(tmp_path / "r" / "mesh.ply"), str(tmp_path / "r" / "mesh.ply"), str(out), res=RES, spp=4)
+    img = np.asarray(Image.open(out).convert("RGB"), float)[:RES]
+    cup = np.abs(img - img[0, 0]).sum(-1) > 30  # not the plain background
+    r, g, b = (img[..., c][cup].mean() for c in range(3))
+    assert cup.mean() > 0.1 and r > 2 * g and r > b

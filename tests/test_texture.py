@@ -114,7 +114,7 @@ def test_textures_go_through_the_glb_and_generate(tmp_path, mitsuba_cpu):
     from ipm.generate import generate
     from ipm.generators import get_generator
     from ipm.io.views import linear_from_srgb
-    from ipm.metrics.texture import read_textured_glb
+    from ipm.io.mesh import read_textured_glb
     from ipm.methods.results import write_result
 
     gen = get_generator("dishes")

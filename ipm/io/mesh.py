@@ -93,3 +93,26 @@ def save_glb(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, l
         scene.metadata.update(extras)
     with atomic_path(path) as tmp:
         tmp.write_bytes(scene.export(file_type="glb", include_normals=normals is not None))
+
+
+def read_textured_glb(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """A textured glb's vertices, faces, part labels (by node order), per-corner UVs and part
+    textures {label: linear albedo (h, w, 3)} (``UserError`` where a part has no texture)."""
+    from ipm.io.views import linear_from_srgb
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"textured mesh not found: {path}")
+    scene = trimesh.load(path, force="scene")
+    vertices, faces, labels, uv, textures, offset = [], [], [], [], {}, 0
+    for k, (name, part) in enumerate(scene.geometry.items()):
+        image = getattr(part.visual.material, "baseColorTexture", None)
+        if getattr(part.visual, "uv", None) is None or image is None:
+            raise UserError(f"{path}: part {name!r} has no texture")
+        vertices.append(np.asarray(part.vertices))
+        faces.append(np.asarray(part.faces) + offset)
+        labels.append(np.full(len(part.faces), k))
+        uv.append(np.asarray(part.visual.uv)[np.asarray(part.faces)])
+        textures[k] = linear_from_srgb(np.asarray(image.convert("RGB"), np.float64) / 255.0)
+        offset += len(part.vertices)
+    return np.concatenate(vertices), np.concatenate(faces), np.concatenate(labels), np.concatenate(uv), textures

@@ -39,34 +39,10 @@ def masked_scores(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) ->
     return {"psnr": psnr, "ssim": float(ssim_map[m].mean())}
 
 
-def read_textured_glb(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
-    """A textured glb's vertices, faces, part labels (by node order), per-corner UVs and part
-    textures {label: linear albedo (h, w, 3)} (``UserError`` where a part has no texture)."""
-    import trimesh
-
-    from ipm.io.views import linear_from_srgb
-
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"textured mesh not found: {path}")
-    scene = trimesh.load(path, force="scene")
-    vertices, faces, labels, uv, textures, offset = [], [], [], [], {}, 0
-    for k, (name, part) in enumerate(scene.geometry.items()):
-        image = getattr(part.visual.material, "baseColorTexture", None)
-        if getattr(part.visual, "uv", None) is None or image is None:
-            raise UserError(f"{path}: part {name!r} has no texture")
-        vertices.append(np.asarray(part.vertices))
-        faces.append(np.asarray(part.faces) + offset)
-        labels.append(np.full(len(part.faces), k))
-        uv.append(np.asarray(part.visual.uv)[np.asarray(part.faces)])
-        textures[k] = linear_from_srgb(np.asarray(image.convert("RGB"), np.float64) / 255.0)
-        offset += len(part.vertices)
-    return np.concatenate(vertices), np.concatenate(faces), np.concatenate(labels), np.concatenate(uv), textures
-
-
 def render_textured(run: str | Path, views, spp: int = 64) -> np.ndarray:
     """Linear RGB renders (n, H, W, 3) of a textured result (its folder's mesh.glb, world frame) by
     Mitsuba under the reference lighting from every camera of ``views`` (``ipm.io.views.Views``)."""
+    from ipm.io.mesh import read_textured_glb
     from ipm.render.textured import render_painted
 
     vertices, faces, labels, uv, textures = read_textured_glb(Path(run) / "mesh.glb")

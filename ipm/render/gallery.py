@@ -129,19 +129,27 @@ def _load(path: str) -> tuple[trimesh.Trimesh | None, str]:
 
 def gallery_sheet(mesh: str, reference: str, out_png: str, res: int = 160, spp: int = 16) -> None:
     """Write ``out_png`` (2 res x 3 res pixels), atomically: ``mesh`` from the three views of
-    :func:`gallery_cameras` of ``reference``, shaded with one colour per part (top) and as the
-    wireframe of its visible edges (bottom); a missing, empty or unreadable mesh gives a sheet of
-    the same size that says so. Needs a Mitsuba variant set (``ipm.runtime.set_mitsuba_variant``)."""
+    :func:`gallery_cameras` of ``reference``, shaded with one colour per part, or wearing its
+    textures under the reference lighting where its folder holds a textured result (mesh.glb and
+    textures/) (top), and as the wireframe of its visible edges (bottom); a missing, empty or
+    unreadable mesh gives a sheet of the same size that says so. Needs a Mitsuba variant set
+    (``ipm.runtime.set_mitsuba_variant``)."""
     from ipm.io import load_mesh, part_labels
+    from ipm.io.mesh import read_textured_glb
     from ipm.io.views import save_rgb
-    from ipm.render.textured import render_parts
+    from ipm.render.textured import render_painted, render_parts
 
     cameras = gallery_cameras(load_mesh(reference))
     m, why = _load(mesh)
     if m is None:
         save_rgb(out_png, _placeholder(why, len(cameras) * res, 2 * res))
         return
-    shaded = render_parts(m.vertices, m.faces, part_labels(m), cameras, np.radians(FOV_DEG), res, res, spp)
+    glb = Path(mesh).with_name("mesh.glb")
+    if glb.is_file() and (glb.parent / "textures").is_dir():
+        v, f, labels, uv, textures = read_textured_glb(glb)
+        shaded = render_painted(v, f, labels, uv, textures, cameras, np.radians(FOV_DEG), res, res, spp)
+    else:
+        shaded = render_parts(m.vertices, m.faces, part_labels(m), cameras, np.radians(FOV_DEG), res, res, spp)
     shaded = np.nan_to_num(shaded, nan=0.0)  # degenerate triangles (a convex hull's slivers) give NaN samples
     lines = np.repeat(wireframe(m, cameras, res)[..., None], 3, axis=3)
     save_rgb(out_png, np.concatenate([np.concatenate(list(r), axis=1) for r in (shaded, lines)], axis=0))

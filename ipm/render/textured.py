@@ -1,7 +1,7 @@
-"""Textured RGB references with Mitsuba (for feature matching by the COLMAP baseline later).
-
-A high-frequency, seeded procedural texture is applied through the mesh's UVs; the
-scene is lit by a dim constant environment and a directional light, path traced.
+"""Colour renders with Mitsuba under the reference lighting (a dim constant environment and a
+directional light, path traced): the references' views in a seeded, high-frequency procedural
+texture on the mesh's UVs (features for COLMAP), part-coloured previews, and meshes wearing
+painted part textures (the texture stage's shading, refinement and scores).
 """
 from __future__ import annotations
 
