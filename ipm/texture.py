@@ -312,3 +312,28 @@ def read_textures(folder, part_names: tuple[str, ...]) -> dict[int, np.ndarray]:
     if not out:
         raise UserError(f"{folder} holds no part texture ({', '.join(f'{n}.png' for n in part_names)})")
     return out
+
+
+def dress(generator, mesh, views) -> tuple[dict | None, dict, float]:
+    """The texture stage on a fitted ``mesh`` (world frame) from its input ``views``
+    (``ipm.io.views.Views``): its textures (None where the views have no colour images or their
+    camera is an estimate), params.json's ``texture`` record (the lighting and each part's seen
+    share; why not where a colour image cannot be read, the fit standing unpainted; empty where
+    there was nothing to paint from) and the stage's seconds."""
+    import time
+
+    from ipm.io.views import load_photos
+
+    t0 = time.perf_counter()
+    if views is None or not views.posed or views.camera is not None or views.masks is None:
+        return None, {}, 0.0
+    try:
+        photos = load_photos(views)
+        if photos is None:
+            return None, {}, 0.0
+        textures, seen = paint(generator, mesh, photos, views.masks, views.c2w, views.fov_x, views.lighting,
+                               refinement=REFINEMENT)
+    except UserError as exc:
+        return None, {"texture": {"skipped": str(exc)}}, round(time.perf_counter() - t0, 2)
+    record = {"lighting": views.lighting, "seen": {mesh.part_names[k]: round(s, 4) for k, s in seen.items()}}
+    return textures, {"texture": record}, round(time.perf_counter() - t0, 2)

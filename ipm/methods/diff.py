@@ -26,6 +26,7 @@ from ipm.search.moves.camera import CameraSettings
 from ipm.search.objective import Objective
 from ipm.search.starts import start_for
 from ipm.search.trial import scorer
+from ipm.texture import dress
 
 
 def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, prepared=None, **overrides):
@@ -97,31 +98,10 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
     mesh = placed_mesh(problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod)), place)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
             "settings": prof.as_dict(), **start_record(trace, prof), **info}
-    t0 = time.perf_counter()
-    try:
-        textures = painted(problem.generator, mesh, views) if views is not None else None
-    except UserError as exc:  # the fit stands; its texture cannot be made (a colour image missing)
-        textures, info["texture"] = None, {"skipped": str(exc)}
-    timing = {"seconds": seconds + time.perf_counter() - t0}
-    if textures is not None:
-        textures, seen = textures
-        info["texture"] = {"lighting": views.lighting, "seen": {mesh.part_names[k]: round(s, 4) for k, s in seen.items()}}
-        timing["texture_seconds"] = round(time.perf_counter() - t0, 2)
+    textures, record, texture_seconds = dress(problem.generator, mesh, views)
+    info.update(record)
+    timing = {"seconds": seconds + texture_seconds, **({"texture_seconds": texture_seconds} if textures else {})}
     return write_result(out, mesh, info, timing, trace, textures=textures)
-
-
-def painted(generator, mesh, views: Views):
-    """``ipm.texture.paint`` of ``mesh`` from the views' colour images and masks, or None where
-    they have none or their camera is an estimate."""
-    from ipm.io.views import load_photos
-    from ipm.texture import REFINEMENT, paint
-
-    if not views.posed or views.camera is not None:
-        return None
-    photos = load_photos(views)
-    if photos is None or views.masks is None:
-        return None
-    return paint(generator, mesh, photos, views.masks, views.c2w, views.fov_x, views.lighting, refinement=REFINEMENT)
 
 
 def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:
