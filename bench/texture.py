@@ -28,7 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-DEV = ["cup_1", "cup_2", "cup_d1", "cup_d2", "cup_d3", "cup_d4", "cup_bowl", "cup_c_mug", "cup_ext"]
+DEV = ["cup_1", "cup_2", "cup_d1", "cup_bowl", "cup_ext", "cup_c_mug", "building_1", "building_d1", "building_d2",
+       "building_ext", "building_annex", "building_t_house"]
+"""The dev cases of the texture stage's choices (docs/decisions.md, "Texture refinement")."""
 IPM = [sys.executable, "-m", "ipm.cli"]
 
 
