@@ -110,6 +110,16 @@ def test_masked_scores_and_sides():
     assert sides(c2w, np.zeros(3), 1) == ["input", "seen", "unseen"]
 
 
+def test_the_cameras_common_centre_is_the_point_they_orbit():
+    """``look_at_centre`` of cameras looking at one point from the held layout finds that point."""
+    from ipm.metrics.texture import look_at_centre
+    from ipm.synth import view_cameras
+
+    centre = np.array([0.3, -0.2, 1.1])
+    c2w = view_cameras(centre, 0.8, 16, 30.0, 20.0, layout="held")
+    np.testing.assert_allclose(look_at_centre(c2w), centre, atol=1e-6)
+
+
 def test_textures_go_through_the_glb_and_generate(tmp_path, mitsuba_cpu):
     from ipm.generate import generate
     from ipm.generators import get_generator
