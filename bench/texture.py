@@ -79,8 +79,8 @@ def repaint(case: str, work: Path, n_input: int, seed: int, variant: str) -> dic
 
     from ipm.generators import get_generator
     from ipm.generators.base import Mesh
-    from ipm.io.views import load_photos, load_views
     from ipm.io.mesh import read_textured_glb
+    from ipm.io.views import load_photos, load_views
     from ipm.metrics.texture import score_renders
     from ipm.render.textured import render_painted
     from ipm.synth import load_case

@@ -265,7 +265,9 @@ def refine(mesh, textures: dict, photos: np.ndarray, masks: np.ndarray, c2w: np.
     targets = [np.ascontiguousarray(p, np.float32) for p in photos]
     step = 0
     for res, steps in refinement.stages:
-        maps = {k: [(mi.UInt32(i), mi.Float(wt)) for i, wt in _enlarge(res, shape[k][0])] for k in textures}
+        by_size = {size: [(mi.UInt32(i), mi.Float(wt)) for i, wt in _enlarge(res, size)]
+                   for size in {shape[k][0] for k in textures}}
+        maps = {k: by_size[shape[k][0]] for k in textures}
         opt = mi.ad.Adam(lr=refinement.lr)
         for k in textures:
             opt[keys[k]] = mi.Float(np.zeros(res * res * 3, np.float32))

@@ -42,12 +42,9 @@ def masked_scores(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) ->
 def render_textured(run: str | Path, views, spp: int = 64) -> np.ndarray:
     """Linear RGB renders (n, H, W, 3) of a textured result (its folder's mesh.glb, world frame) by
     Mitsuba under the reference lighting from every camera of ``views`` (``ipm.io.views.Views``)."""
-    from ipm.io.mesh import read_textured_glb
-    from ipm.render.textured import render_painted
+    from ipm.render.textured import render_glb
 
-    vertices, faces, labels, uv, textures = read_textured_glb(Path(run) / "mesh.glb")
-    return render_painted(vertices, faces, labels, uv, textures, views.c2w, views.fov_x, views.width,
-                          views.height, spp)
+    return render_glb(Path(run) / "mesh.glb", views.c2w, views.fov_x, views.width, views.height, spp)
 
 
 def look_at_centre(c2w: np.ndarray) -> np.ndarray:
@@ -62,28 +59,29 @@ def look_at_centre(c2w: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
-def score_result(run: str | Path, views_path: str | Path, appearance: str = "ipm.metrics.texture:render_textured",
-                 n_input: int = 1) -> dict:
+def score_result(run: str | Path, views_path: str | Path,
+                 appearance: str = "ipm.metrics.texture:render_textured") -> dict:
     """A result (its folder) rendered by ``appearance`` (``module:function(run, views)`` -> linear
     RGB (n, H, W, 3): a method's :attr:`ipm.methods.Method.appearance`) and scored against every view
-    of ``views_path`` (the reference's colour views under the reference lighting, its first
-    ``n_input`` the inputs): per view its side and scores, and the mean per side."""
+    of ``views_path`` (the reference's colour views under the reference lighting, view 0 the
+    input view): per view its side and scores, and the mean per side."""
     from ipm.io.views import load_views
     from ipm.methods import resolve
 
     views = load_views(views_path)
     if views.lighting != "reference":
         raise UserError(f"{views_path}: scores need colour views under the reference lighting")
-    return score_renders(resolve(appearance)(run, views), views, n_input)
+    return score_renders(resolve(appearance)(run, views), views)
 
 
-def score_renders(renders: np.ndarray, views, n_input: int = 1) -> dict:
+def score_renders(renders: np.ndarray, views) -> dict:
     """Linear renders (n, H, W, 3) scored against the colour views ``views`` (``ipm.io.views.Views``,
-    its first ``n_input`` the inputs): per view its side and scores, and the mean per side."""
+    view 0 the input view): per view its side (:func:`sides`, from the input view) and scores, and
+    the mean per side."""
     from ipm.io.views import load_photos, srgb_bytes
 
     reference = load_photos(views)
-    side = sides(views.c2w, look_at_centre(views.c2w), n_input)
+    side = sides(views.c2w, look_at_centre(views.c2w), 1)
     per_view = []
     for i in range(len(views)):
         got, want = srgb_bytes(renders[i]) / 255.0, srgb_bytes(reference[i]) / 255.0

@@ -135,9 +135,8 @@ def gallery_sheet(mesh: str, reference: str, out_png: str, res: int = 160, spp: 
     unreadable mesh gives a sheet of the same size that says so. Needs a Mitsuba variant set
     (``ipm.runtime.set_mitsuba_variant``)."""
     from ipm.io import load_mesh, part_labels
-    from ipm.io.mesh import read_textured_glb
     from ipm.io.views import save_rgb
-    from ipm.render.textured import render_painted, render_parts
+    from ipm.render.textured import render_glb, render_parts
 
     cameras = gallery_cameras(load_mesh(reference))
     m, why = _load(mesh)
@@ -146,8 +145,7 @@ def gallery_sheet(mesh: str, reference: str, out_png: str, res: int = 160, spp: 
         return
     glb = Path(mesh).with_name("mesh.glb")
     if glb.is_file() and (glb.parent / "textures").is_dir():
-        v, f, labels, uv, textures = read_textured_glb(glb)
-        shaded = render_painted(v, f, labels, uv, textures, cameras, np.radians(FOV_DEG), res, res, spp)
+        shaded = render_glb(glb, cameras, np.radians(FOV_DEG), res, res, spp)
     else:
         shaded = render_parts(m.vertices, m.faces, part_labels(m), cameras, np.radians(FOV_DEG), res, res, spp)
     shaded = np.nan_to_num(shaded, nan=0.0)  # degenerate triangles (a convex hull's slivers) give NaN samples

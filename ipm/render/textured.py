@@ -109,6 +109,15 @@ def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray,
     return _render_scene(painted_shapes(vertices, faces, labels, uv, textures), c2w, fov_x, width, height, spp)
 
 
+def render_glb(path, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int = 64) -> np.ndarray:
+    """:func:`render_painted` of a textured glb (``ipm.io.mesh.read_textured_glb``): its parts in
+    their textures under the reference lighting from each camera."""
+    from ipm.io.mesh import read_textured_glb
+
+    vertices, faces, labels, uv, textures = read_textured_glb(path)
+    return render_painted(vertices, faces, labels, uv, textures, c2w, fov_x, width, height, spp)
+
+
 def painted_shapes(vertices, faces, labels, uv, textures: dict) -> dict:
     """Mitsuba meshes ``part_K`` of a part-labelled mesh, part k wearing ``textures[k]`` (see
     :func:`render_painted`; white without one). A texture is an image as glTF reads one (its first
