@@ -258,19 +258,24 @@ def refine(mesh, textures: dict, photos: np.ndarray, masks: np.ndarray, c2w: np.
     params = mi.traverse(scene)
     keys = {k: f"part_{k}.bsdf.reflectance.data" for k in textures}
     shape = {k: tuple(textures[k].shape) for k in textures}
-    # numpy buffers kept alive: a Dr.Jit array made from one may share its memory
-    held = {k: np.ascontiguousarray(textures[k][::-1], np.float32).ravel() for k in textures}
-    base = {k: mi.Float(held[k]) for k in textures}
-    weights = [np.repeat(_eroded(m)[..., None], 3, -1).astype(np.float32) for m in masks]
-    targets = [np.ascontiguousarray(p, np.float32) for p in photos]
+    held = []  # every numpy buffer behind a Dr.Jit array, kept alive: the array may share its memory
+
+    def kept(kind, array, dtype=np.float32):
+        held.append(np.ascontiguousarray(array, dtype))
+        return kind(held[-1])
+
+    base = {k: kept(mi.Float, textures[k][::-1].ravel()) for k in textures}
+    eroded = [np.repeat(_eroded(m)[..., None], 3, -1) for m in masks]
+    weights, weight_sums = [kept(mi.TensorXf, e) for e in eroded], [float(e.sum()) for e in eroded]
+    targets = [kept(mi.TensorXf, p) for p in photos]
     step = 0
     for res, steps in refinement.stages:
-        by_size = {size: [(mi.UInt32(i), mi.Float(wt)) for i, wt in _enlarge(res, size)]
+        by_size = {size: [(kept(mi.UInt32, i, np.uint32), kept(mi.Float, wt)) for i, wt in _enlarge(res, size)]
                    for size in {shape[k][0] for k in textures}}
         maps = {k: by_size[shape[k][0]] for k in textures}
         opt = mi.ad.Adam(lr=refinement.lr)
         for k in textures:
-            opt[keys[k]] = mi.Float(np.zeros(res * res * 3, np.float32))
+            opt[keys[k]] = kept(mi.Float, np.zeros(res * res * 3))
 
         def full(k):
             delta = opt[keys[k]]
@@ -282,9 +287,9 @@ def refine(mesh, textures: dict, photos: np.ndarray, masks: np.ndarray, c2w: np.
                 params[keys[k]] = mi.TensorXf(full(k), shape[k])
             params.update()
             image = mi.render(scene, params, sensor=view, spp=refinement.spp, seed=seed * 100003 + step)
-            if weights[view].sum() > 0:
-                loss = dr.sum(dr.square(image - mi.TensorXf(targets[view])) * mi.TensorXf(weights[view]))
-                dr.backward(loss / float(weights[view].sum()))
+            if weight_sums[view] > 0:
+                loss = dr.sum(dr.square(image - targets[view]) * weights[view])
+                dr.backward(loss / weight_sums[view])
                 opt.step()
             step += 1
         base = {k: dr.detach(full(k)) for k in textures}
