@@ -111,12 +111,23 @@ def charts(kinds: list[tuple[str, int, int]], positions: np.ndarray, parts: np.n
     """Per-corner UVs (F, 3, 2) of the present solids' triangles, in the layout's order: ``kinds``
     (kind, solids, vertices a solid) as laid out, every solid's positions at the reference
     parameters, each solid's part and whether the building has it. Each part's faces are packed
-    into its own unit square."""
-    units, sizes, tri_face, face_part, face_keep = [], [], [], [], []
-    offset, solid, faces_before = 0, 0, 0
+    into its own unit square. Every solid of a kind is charted in one call (a building's layout
+    has about thirty groups of solids and two kinds)."""
+    groups, offset, solid = [], 0, 0
     for kind, n, k in kinds:
+        groups.append((kind, n, positions[offset:offset + n * k].reshape(n, k, 3), solid))
+        offset += n * k
+        solid += n
+    charted = {}  # kind -> (local (n, T, 3, 2), sizes (n, faces, 2)) of all its solids, in layout order
+    for kind in dict.fromkeys(kind for kind, _, _, _ in groups):
+        charted[kind] = _face_charts(kind, np.concatenate([v for g, _, v, _ in groups if g == kind]))
+    taken = dict.fromkeys(charted, 0)
+    units, sizes, tri_face, face_part, face_keep = [], [], [], [], []
+    faces_before = 0
+    for kind, n, _, solid in groups:
         face = TEMPLATE_CHARTS[kind][1]
-        local, size = _face_charts(kind, positions[offset:offset + n * k].reshape(n, k, 3))
+        local, size = (a[taken[kind]:taken[kind] + n] for a in charted[kind])
+        taken[kind] += n
         n_faces = size.shape[1]
         units.append(local.reshape(-1, 3, 2))
         tri_face.append((faces_before + n_faces * np.arange(n)[:, None] + face[None]).ravel())
@@ -124,8 +135,6 @@ def charts(kinds: list[tuple[str, int, int]], positions: np.ndarray, parts: np.n
         face_part.append(np.repeat(parts[solid:solid + n], n_faces))
         face_keep.append(np.repeat(present[solid:solid + n], n_faces))
         faces_before += n * n_faces
-        offset += n * k
-        solid += n
     units, tri_face, sizes = np.concatenate(units), np.concatenate(tri_face), np.concatenate(sizes)
     face_part, face_keep = np.concatenate(face_part), np.concatenate(face_keep).astype(bool)
     kept = face_keep[tri_face]
