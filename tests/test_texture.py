@@ -66,7 +66,9 @@ def painted_plane(mitsuba_cpu):
 def test_refinement_pulls_a_wrong_texture_to_the_photo(painted_plane):
     """From an albedo off by +0.15 everywhere, the refinement (a coarse stage, then texel-sized)
     fitted to the one photo brings the covered texels back: their error under a fifth of it,
-    deterministically."""
+    repeatably: a second run from the same seed gives the same texels to float32 rounding (the
+    gradients' atomic adds in Dr.Jit's backward pass may land in another order: in one suite run
+    6 of 3072 values differed in their last bit; another seed moves them by 0.025 on average)."""
     from ipm.texture import Refinement, refine
 
     albedo, _, _, photo, mesh, mask, c2w = painted_plane
@@ -78,7 +80,9 @@ def test_refinement_pulls_a_wrong_texture_to_the_photo(painted_plane):
     after = np.mean([np.abs(fixed[0][r, c] - albedo[r, c]).mean() for r, c in inner])
     assert after < before / 5  # measured 0.022 from 0.15
     again = refine(mesh, wrong, photo, mask.astype(np.float32), c2w, 0.9, schedule)
-    np.testing.assert_array_equal(fixed[0], again[0])
+    np.testing.assert_allclose(fixed[0], again[0], rtol=0, atol=1e-6)
+    other = refine(mesh, wrong, photo, mask.astype(np.float32), c2w, 0.9, schedule, seed=1)
+    assert np.abs(other[0] - fixed[0]).max() > 1e-4  # the seed reaches the renders
 
 
 def test_paint_recovers_the_albedo_under_the_reference_lighting(painted_plane):
