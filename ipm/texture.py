@@ -275,7 +275,7 @@ def refine(mesh, textures: dict, photos: np.ndarray, masks: np.ndarray, c2w: np.
         maps = {k: by_size[shape[k][0]] for k in textures}
         opt = mi.ad.Adam(lr=refinement.lr)
         for k in textures:
-            opt[keys[k]] = kept(mi.Float, np.zeros(res * res * 3))
+            opt[keys[k]] = dr.zeros(mi.Float, res * res * 3)
 
         def full(k):
             delta = opt[keys[k]]
