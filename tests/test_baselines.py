@@ -60,6 +60,7 @@ def test_extract_surface_of_an_analytic_sphere():
         extract_surface(np.ones((8, 8, 8)), lo, hi, 0.5, inside_positive=True)
 
 
+@pytest.mark.slow
 def test_visual_hull_contains_the_object_and_scores_between_the_reference_lines(hemi6, tmp_path):
     from ipm.metrics import evaluate_meshes
     from ipm.metrics.silhouette import raycasting_scene
@@ -113,6 +114,7 @@ def test_failure_record_flows_into_the_table(tmp_path):
     assert "COLMAP SfM (16 views)" in (tmp_path / "w.csv").read_text()
 
 
+@pytest.mark.slow
 def test_cli_baseline(hemi6, tmp_path):
     def ipm(*args):
         return subprocess.run([sys.executable, "-m", "ipm.cli", *args], capture_output=True, text=True, timeout=300)

@@ -47,6 +47,7 @@ def test_windows_and_doors_follow_the_counts(gen):
     assert _count(fewer, WINDOWS) == 3 * (2 + 1 + 1) * BOX
 
 
+@pytest.mark.slow
 def test_levels_of_detail_add_parts(gen):
     x = gen.presets["villa"]
     parts = [set(np.unique(gen.mesh(x, lod).labels)) for lod in gen.lods]
@@ -98,6 +99,7 @@ def test_inert_parameters_depend_on_the_structure(gen):
     assert gable[ix["roof_height"]] and not gable[ix["hip_ratio"]] and gable[ix["chimney_x"]]
 
 
+@pytest.mark.slow
 def test_facade_jacobian_matches_central_differences(gen):
     """Level 2 (windows and doors in recesses): the window and door sizes move the right vertices."""
     x = gen.presets["house"].astype(np.float64)

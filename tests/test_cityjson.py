@@ -141,6 +141,7 @@ def test_pitched_roofs_keep_their_shape_and_height(models):
         assert ridge == pytest.approx((top + x["roof_height"]) * METRES_PER_UNIT, abs=2e-3)
 
 
+@pytest.mark.slow
 def test_level_three_has_a_window_surface_per_window_and_the_doors():
     """The tower at level 3 (frames round every opening, no mullions): one ``Window`` per window,
     the entrances' ``Door`` surfaces, still one closed solid (the boolean's zero-area slivers

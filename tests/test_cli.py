@@ -20,6 +20,7 @@ def _one_line_error(res):
     return lines[0]
 
 
+@pytest.mark.slow
 def test_unknown_generator(tmp_path, tiny_case):
     out = tmp_path / "out"
     res = ipm("reconstruct", "--generator", "teapot", "--views", str(tiny_case / "transforms.json"),
@@ -66,6 +67,7 @@ def test_unknown_case(tmp_path):
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow
 def test_evaluate_and_reference_line_commands(tmp_path, tiny_case):
     ref = str(tiny_case / "reference.ply")
     assert ipm("reference-line", "convex_hull", "--reference", ref, "--out", str(tmp_path / "hull")).returncode == 0
@@ -107,6 +109,7 @@ def test_methods_refuse_generators_and_stages_they_cannot_use(tmp_path, tiny_cas
     assert not (tmp_path / "r").exists() and not (tmp_path / "p.json").exists()
 
 
+@pytest.mark.slow
 def test_prepare_writes_statistics_the_ga_reads(tmp_path):
     from ipm.optim.ga_statistics import GeneStatistics
 
@@ -119,6 +122,7 @@ def test_prepare_writes_statistics_the_ga_reads(tmp_path):
     assert [p.name for p in out.parent.iterdir()] == ["trees.json"]  # nothing half-written beside it
 
 
+@pytest.mark.slow
 def test_cases_lists_every_case_with_its_split():
     res = ipm("cases", "--split", "test")
     assert res.returncode == 0, res.stderr

@@ -125,6 +125,7 @@ def _silhouette_iou(reference, mesh):
     return silhouette_iou(reference, mesh, n_views=16, res=128)["iou_mean"]
 
 
+@pytest.mark.slow
 def test_known_pose_run_meshes_the_cup(ring16, tmp_path):
     from ipm.io import load_mesh
     from ipm.methods import METHODS
@@ -148,6 +149,7 @@ def test_known_pose_run_meshes_the_cup(ring16, tmp_path):
     assert iou > 0.8 and iou > sphere + 0.25, (iou, sphere)
 
 
+@pytest.mark.slow
 def test_sfm_run_is_aligned_to_the_world(ring16, tmp_path):
     """Pose-free SfM registers most views, its camera centres land on the known ones after the
     similarity, and the mesh sits on the reference in the world frame."""
@@ -167,6 +169,7 @@ def test_sfm_run_is_aligned_to_the_world(ring16, tmp_path):
     assert iou > _silhouette_iou(ref, bounding_sphere(ref)) + 0.1, iou
 
 
+@pytest.mark.slow
 def test_unregistrable_views_fail_without_raising(ring16, tmp_path):
     """Two opposite views share no feature: SfM registers nothing and known-pose
     triangulation finds no point; both write an empty mesh and ``failed``."""
@@ -186,6 +189,7 @@ def test_unregistrable_views_fail_without_raising(ring16, tmp_path):
     assert "sparse points" in json.loads((tmp_path / "colmap_known" / "info.json").read_text())["failed"]
 
 
+@pytest.mark.slow
 def test_bad_input_raises_user_error(ring16, tmp_path):
     from ipm.methods import METHODS
 

@@ -149,6 +149,7 @@ def tiny3(tmp_path_factory, mitsuba_cpu):
     return out
 
 
+@pytest.mark.slow
 def test_smoke_run_writes_a_watertight_mesh_near_the_object(tmp_path, tiny3):
     from ipm.metrics import silhouette_iou
 

@@ -62,6 +62,7 @@ def tree_case(tmp_path_factory, mitsuba_cpu):
     return synthesized(tmp_path_factory, "tree_1", n_views=2, res=96, spp=16)
 
 
+@pytest.mark.slow
 def test_tree_synth_writes_semantic_images(tree_case):
     data = json.loads((tree_case / "transforms.json").read_text())
     assert data["semantic_labels"] == {"background": 0, "branch": 1, "foliage": 2} == LABEL_NAMES
@@ -98,6 +99,7 @@ def test_semantic_images_are_checked(tmp_path, tree_case):
     assert load_views(case / "transforms.json", semantics=False).semantics is None
 
 
+@pytest.mark.slow
 def test_space_colonisation_tree_stands_with_both_parts():
     from datasets_synthetic.recipes import RECIPES
     from ipm.synth import ground_truth_mesh, is_tree_case, load_case
@@ -143,6 +145,7 @@ def tree_run(tmp_path_factory, tree_case, tree_stats):
     return out, info
 
 
+@pytest.mark.slow
 def test_ga_on_a_tree_writes_a_placed_two_part_mesh(tree_run, tree_case):
     from ipm.generators import get_generator
     from ipm.methods import METHODS, row_label

@@ -13,6 +13,7 @@ import trimesh
 
 from ipm.generate import generate
 from ipm.generators import get_generator
+from tests.conftest import slow_except
 from tests.test_cli import _one_line_error, ipm
 
 VALIDATOR = Path(__file__).parent / "gltf"
@@ -35,7 +36,7 @@ def _params_file(tmp_path, generator: str, x: np.ndarray, pose: dict | None = No
     return path
 
 
-@pytest.mark.parametrize("generator,preset", [("buildings", "villa"), ("dishes", "mug")])
+@pytest.mark.parametrize("generator,preset", slow_except([("buildings", "villa"), ("dishes", "mug")], "dishes"))
 def test_every_level_of_detail_round_trips(tmp_path, generator, preset):
     gen = get_generator(generator)
     x = gen.presets[preset]
@@ -88,6 +89,7 @@ def test_bad_parameter_files_give_one_line(tmp_path, content, message):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_bad_options_give_one_line(tmp_path):
     params = _params_file(tmp_path, "dishes", get_generator("dishes").presets["mug"])
     out = tmp_path / "mesh.glb"
@@ -101,6 +103,7 @@ def test_bad_options_give_one_line(tmp_path):
     assert "parameter file not found" in _one_line_error(res)
 
 
+@pytest.mark.slow
 def test_glbs_pass_the_khronos_validator(tmp_path):
     """Every level of detail of a building and a cup, plain and textured (one baseColorTexture per
     part, TEXCOORD_0), and a reconstruction's GLB layout (posed): no errors and no warnings from the

@@ -26,7 +26,7 @@ def _check_closed(gen, x, lod):
     return m
 
 
-@pytest.mark.parametrize("name", slow_except(NAMES, "dishes", "buildings"))
+@pytest.mark.parametrize("name", slow_except(NAMES, "dishes"))
 def test_presets_are_closed_at_every_lod(name):
     gen = get_generator(name)
     assert gen.presets
@@ -43,7 +43,7 @@ def test_random_parameters_give_closed_meshes(name, rng):
         _check_closed(gen, gen.spec.from_unit(rng.random(len(gen.spec))), min(gen.lods))
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", slow_except(NAMES, "dishes", "trees"))
 def test_level_of_detail_adds_triangles(name):
     gen = get_generator(name)
     x = next(iter(gen.presets.values()))
@@ -60,7 +60,7 @@ def central_difference(f, x: np.ndarray, i: int, h: float) -> np.ndarray:
             - np.asarray(f(jnp.asarray(xm, jnp.float32)), np.float64)) / (2 * h)
 
 
-@pytest.mark.parametrize("name", [n for n in NAMES if GENERATORS[n].differentiable])
+@pytest.mark.parametrize("name", slow_except([n for n in NAMES if GENERATORS[n].differentiable], "dishes"))
 def test_jacobian_matches_central_differences(name, rng):
     gen = get_generator(name)
     x = next(iter(gen.presets.values())).astype(np.float64)

@@ -12,6 +12,7 @@ from ipm.io.views import Views
 from ipm.learned.data import (TRAIN_SEED_BASE, crop_box, draw_sample, encode_view, make_dataset, sample_lod,
                               targets)
 from ipm.problem import Problem
+from tests.conftest import slow_except
 
 
 def _views(sample) -> Views:
@@ -29,7 +30,7 @@ def test_training_seeds_are_disjoint_from_every_case():
     assert max(seeds) < TRAIN_SEED_BASE
 
 
-@pytest.mark.parametrize("name", ["dishes", "buildings"])
+@pytest.mark.parametrize("name", slow_except(["dishes", "buildings"], "dishes"))
 def test_targets_rebuild_the_sample_exactly(name):
     """The targets in the search's coordinates, turned back into a problem's z by the proposal's
     own map, give the sample's mesh: the conventions of pose, anchor and camera frame agree."""
@@ -254,6 +255,7 @@ def test_the_memetic_stage_is_shorter_from_the_learned_start(tiny_case, monkeypa
     assert seen == [4, 6, 12, 2]
 
 
+@pytest.mark.slow
 def test_a_learned_start_that_fits_badly_adds_the_presets_stage(tiny_case, monkeypatch):
     """``learned_fit``: where the best loss of the memetic stage from the learned start is above it,
     the stage runs again from the presets' start at full length, both last generations reach the

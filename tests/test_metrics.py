@@ -28,6 +28,7 @@ def lens_iou(d, r=1.0):
     return lens / (2 * 4 / 3 * math.pi * r**3 - lens)
 
 
+@pytest.mark.slow
 def test_mesh_against_itself_is_perfect():
     m = sphere()
     out = evaluate_meshes(m, m, n_views=16, res=64, grid=64)

@@ -45,6 +45,7 @@ def test_levels_are_geometric_dense_levels_index_every_corner_once_hashed_ones_s
         assert r.min() >= level * GRID.table_size and r.max() < (level + 1) * GRID.table_size
 
 
+@pytest.mark.slow
 def test_encoding_is_continuous_and_its_table_gradient_matches_finite_differences():
     import jax
     import jax.numpy as jnp
@@ -126,6 +127,7 @@ def _sphere_cells(n: int) -> np.ndarray:
     return np.linalg.norm(nearest - CENTRE, axis=1) < RADIUS
 
 
+@pytest.mark.slow
 def test_volume_rendering_of_a_constant_density_sphere():
     import jax.numpy as jnp
 
@@ -216,6 +218,7 @@ def tiny3(tmp_path_factory, mitsuba_cpu):
     return out
 
 
+@pytest.mark.slow
 def test_smoke_run_writes_a_mesh_near_the_object(tmp_path, tiny3):
     from baselines.common import input_views
     from ipm.metrics import silhouette_iou

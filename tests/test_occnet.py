@@ -160,6 +160,7 @@ def test_the_command_line_prepares_and_runs(trained, building, tmp_path, capsys)
     assert "mesh in" in capsys.readouterr().out and (tmp_path / "c" / "info.json").exists()
 
 
+@pytest.mark.slow
 def test_bad_weights_and_inputs_are_one_user_error_line(cup, tmp_path, capsys):
     import jax
 

@@ -108,6 +108,7 @@ def test_the_photo_layout_refuses_trees(tmp_path, mitsuba_cpu):
         synthesize("tree_1", tmp_path / "t", res=32, spp=2, progress=False, layout="photo")
 
 
+@pytest.mark.slow
 def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu):
     """Two training photos (a cup and a building on random grounds): uint8 images at the network's
     size, masks that cover part of the frame, and the object's pixels unlike the ground's."""

@@ -32,6 +32,7 @@ SMALL = dict(population=4, ga_iterations=3, adam_per_iteration=16, memetic_res=4
 
 
 @pytest.mark.parametrize("renderer", slow_except(["mitsuba", "jax"], "jax"))
+@pytest.mark.slow
 def test_diff_reconstruction_writes_everything(tmp_path, tiny_case, renderer):
     out = tmp_path / "rec"
     info = METHODS["diff"](tiny_case / "transforms.json", out, generator="dishes", profile="smoke", seed=3,
@@ -122,6 +123,7 @@ def test_reconstruction_is_deterministic(tmp_path, tiny_case, renderer):
     assert a["params"] == b["params"] and a["pose"] == b["pose"]
 
 
+@pytest.mark.slow
 def test_simplify_drops_a_hidden_handle_and_keeps_a_visible_one(mitsuba_cpu):
     """Occam step: a handle behind the body (camera on -x) is dropped; seen from the side it stays."""
     from ipm.io.views import Views

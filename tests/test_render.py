@@ -55,6 +55,7 @@ POSE = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
     ("profile_4", 0.1, 0.005), ("y_scale", 0.1, 0.005), ("handle_radius_10", 0.3, 0.02),
     ("yaw", 0.3, 0.005), ("dx", 0.05, 0.005), ("log_scale", 0.05, 0.005),
 ], "profile_4"))
+@pytest.mark.slow
 def test_gradient_matches_central_differences(variant, name, shift, delta):
     """d loss / d z from Mitsuba + drjit.wrap(JAX) against central differences of the same loss.
 

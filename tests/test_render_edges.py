@@ -34,6 +34,7 @@ def _mug(lod=0):
     return gen, problem, z0, problem.vertex_fn(key, lod), topo
 
 
+@pytest.mark.slow
 def test_coverage_matches_ray_cast_and_mitsuba(mitsuba_cpu):
     """Pixels more than half covered agree with open3d's ray caster and with Mitsuba's render (IoU
     > 0.97, the rest edge pixels), and the covered area matches Mitsuba's within 1 %."""
@@ -68,6 +69,7 @@ def test_coverage_is_unbiased_area():
     ("profile_4", 0.1, 0.005), ("y_scale", 0.1, 0.005), ("handle_radius_10", 0.3, 0.02),
     ("yaw", 0.3, 0.005), ("dx", 0.05, 0.005), ("log_scale", 0.05, 0.005),
 ], "profile_4"))
+@pytest.mark.slow
 def test_gradient_matches_central_differences(name, shift, delta):
     """d loss / d z by edge sampling (mean over 8 render seeds) against central differences of the
     loss of high-sample renders (64 per pixel, the same sample grid on both sides)."""
@@ -93,6 +95,7 @@ def test_gradient_matches_central_differences(name, shift, delta):
     assert grad == pytest.approx(fd, rel=0.15)
 
 
+@pytest.mark.slow
 def test_gradient_matches_mitsuba(mitsuba_cpu):
     """The whole gradient vector (shape and pose) points where Mitsuba's does: cosine > 0.97
     between the means over 6 render seeds each, and the norms agree within 10 %."""
@@ -127,6 +130,7 @@ def test_batch_equals_single_calls_and_budget_grows():
         np.testing.assert_allclose(single[1], grad, rtol=1e-3, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_target_masks_kept_on_the_device_follow_the_array_passed():
     """The renderer keeps target masks on the device per array object: switching between two
     targets, and passing a fresh array each call, gives the losses of a renderer that never saw
@@ -173,6 +177,7 @@ def _house(classes=("window",)):
 
 
 @pytest.mark.parametrize("classes", slow_except([("window",), ("window", "roof")], "window"))
+@pytest.mark.slow
 def test_class_mask_matches_mitsuba(mitsuba_cpu, classes):
     """A building's silhouette and its visible window mask (recessed panes, partly hidden by their
     reveals at an angle), and its roof's, agree with Mitsuba's: pixels more than half covered at
@@ -247,6 +252,7 @@ def test_back_faces_culled_on_closed_solids_change_nothing_but_the_work():
     assert all(np.all(np.less(b, a)) for a, b in zip(plain._budgets.values(), culled._budgets.values()))
 
 
+@pytest.mark.slow
 def test_meshes_of_one_padded_size_differing_inside_are_told_apart():
     """Face arrays padded to one size with the same first and last triangles, drawn in turn by one
     renderer, each give their own image (the faces kept on the device are looked up by content)."""
@@ -262,6 +268,7 @@ def test_meshes_of_one_padded_size_differing_inside_are_told_apart():
     assert not np.allclose(*(EdgeRenderer(c2w, FOV, 32, 32).render(quad, m) for m in meshes))
 
 
+@pytest.mark.slow
 def test_back_faces_culled_only_where_asked():
     """With ``cull_back`` a triangle seen from behind is not drawn, one seen from its front is; without,
     both are."""

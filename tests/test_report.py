@@ -100,6 +100,7 @@ def _cells(blocks: list[dict]) -> dict:
             for b in blocks for r in b["rows"] for c, cell in zip(b["columns"], r["cells"])}
 
 
+@pytest.mark.slow
 def test_table1_rows_are_methods_columns_cases_then_aggregates_test_split_first(report):
     text = report["text"]
     assert text.index("Table 1: 64-view silhouette IoU, test split") < text.index("Dev split")
@@ -151,6 +152,7 @@ def test_page_is_self_contained_with_everything_a_reader_needs(report):
     assert ours[:ours.index("</tr>")].endswith("<td>510</td>")  # peak RSS of ours' two jobs (500 and 510 MB)
 
 
+@pytest.mark.slow
 def test_a_camera_withheld_row_leads_with_its_shape_iou_and_wins_by_it(report, tmp_path):
     """Table 1 on the page: the photo row's cell is "shape <mean>" (its value, sorted and compared
     for the best mark), the world IoU and the camera's errors beside it, a note under the table;
@@ -191,6 +193,7 @@ def test_a_camera_withheld_row_leads_with_its_shape_iou_and_wins_by_it(report, t
     assert build.SIBLINGS[0].metric == "shape_iou" and shape_table[(photo, "cup_t1")]["main"] == f"{shape.mean():.3f}"
 
 
+@pytest.mark.slow
 def test_mask_rows_are_shown_against_their_true_mask_twins(report, tmp_path):
     """Rows that read degraded masks get a section of their own: per class and degradation the IoU
     lost against the same row on the true masks, paired by case and seed, and a plot of IoU against
@@ -233,6 +236,7 @@ def test_mask_rows_are_shown_against_their_true_mask_twins(report, tmp_path):
     assert f"{OURS} [mask: edge +2 px]" in text and "shape IoU lost (mean)" in text
 
 
+@pytest.mark.slow
 def test_pictures_missing_on_disk_say_so(report, tmp_path):
     res = tmp_path / "results"
     shutil.copytree(report["root"] / "results", res)

@@ -63,6 +63,7 @@ def _job_with_cache(folder, code: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
 
 
+@pytest.mark.slow
 def test_compilation_cache_is_locked_for_processes_side_by_side(tmp_path):
     """Jobs share JAX's persistent compilation cache: it has a size limit, so JAX locks the folder
     around reads and writes (a job that read a half-written program hung), and a second process

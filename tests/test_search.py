@@ -80,6 +80,7 @@ def mug_view(mitsuba_cpu):
     return problem, Views(0.7, 48, 48, cam, masks.astype(np.float32))
 
 
+@pytest.mark.slow
 def test_a_listed_move_runs_in_its_phase_with_its_settings(mug_view):
     problem, views = mug_view
     assert [m.name for m in moves_for(problem)] == ["polish", "nudge"]
@@ -96,6 +97,7 @@ def test_a_listed_move_runs_in_its_phase_with_its_settings(mug_view):
         get_profile("smoke", nudge_steps=-1)
 
 
+@pytest.mark.slow
 def test_an_unlisted_move_does_not_run(mug_view):
     problem, views = mug_view
     plain = Problem(Dishes(), problem.anchor_t, problem.anchor_s)
@@ -105,6 +107,7 @@ def test_an_unlisted_move_does_not_run(mug_view):
     assert CALLS == []
 
 
+@pytest.mark.slow
 def test_a_move_that_changes_nothing_leaves_the_fit_as_it_was(mug_view):
     """The render seeds a stage or move draws do not follow the evaluations made before it: a move
     that spends evaluations but keeps its candidate gives the fit of a search without it."""
@@ -120,6 +123,7 @@ def test_a_move_that_changes_nothing_leaves_the_fit_as_it_was(mug_view):
     np.testing.assert_array_equal(fits[0][0], fits[1][0])
 
 
+@pytest.mark.slow
 def test_the_start_of_the_search_is_pluggable(mug_view):
     """A start other than the presets' (here: the mug preset alone, as a learned proposal would
     give one guess) feeds the memetic stage unchanged."""

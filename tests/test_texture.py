@@ -63,6 +63,7 @@ def painted_plane(mitsuba_cpu):
     return albedo, textures[0], seen[0], photo, mesh, mask, c2w
 
 
+@pytest.mark.slow
 def test_refinement_pulls_a_wrong_texture_to_the_photo(painted_plane):
     """From an albedo off by +0.15 everywhere, the refinement (a coarse stage, then texel-sized)
     fitted to the one photo brings the covered texels back: their error under a fifth of it,

@@ -29,7 +29,7 @@ def test_lint_is_clean():
     assert "Congratulations" in res.stdout + res.stderr
 
 
-@pytest.mark.parametrize("config", slow_except(["default", "smoke", "paper", "benchmark"], "default", "smoke", "paper"))
+@pytest.mark.parametrize("config", slow_except(["default", "smoke", "paper", "benchmark"], "smoke"))
 def test_dry_run_plans_every_stage(config, tmp_path):
     res = snakemake("-n", "--cores", "2", "--configfile", str(ROOT / f"pipelines/config/{config}.yaml"),
                     "--directory", str(tmp_path))
@@ -51,16 +51,19 @@ def dry_run(tmp_path, config_text: str):
     return res.returncode, res.stdout + res.stderr
 
 
+@pytest.mark.slow
 def test_invalid_config_is_refused(tmp_path):
     rc, out = dry_run(tmp_path, "profile: turbo\n")
     assert rc != 0 and "turbo" in out
 
 
+@pytest.mark.slow
 def test_unknown_method_is_refused(tmp_path):
     rc, out = dry_run(tmp_path, "methods: [{name: nerf, views: 16}]\n")
     assert rc != 0 and "unknown method 'nerf'" in out
 
 
+@pytest.mark.slow
 def test_diff_on_a_tree_case_is_refused(tmp_path):
     rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\nmethods: [{name: diff, views: 1}]\n")
     assert rc != 0 and "case tree_1: method 'diff' needs a differentiable generator" in out
@@ -68,6 +71,7 @@ def test_diff_on_a_tree_case_is_refused(tmp_path):
     assert rc != 0 and "tree_9" in out  # an unknown case in a row's list is refused
 
 
+@pytest.mark.slow
 def test_config_cases_narrow_every_row(tmp_path):
     """``--config 'cases=[cup_t1]'`` on the default config runs just that case, though the rows
     keep their own case lists (they are intersected with ``cases``)."""
@@ -84,6 +88,7 @@ def test_config_cases_narrow_every_row(tmp_path):
     assert "ga_1v" not in out  # the GA row lists only trees
 
 
+@pytest.mark.slow
 def test_other_seeds_of_a_compiling_method_wait_for_the_first(tmp_path):
     """The diff path's second seed of a case runs after its first (it reads the programs the first
     compiled) and the GA's beside it (nothing to share); a rerun of the first seed alone is not a
@@ -104,6 +109,7 @@ def test_other_seeds_of_a_compiling_method_wait_for_the_first(tmp_path):
     assert METHODS["diff"].compiles and not METHODS["ga"].compiles
 
 
+@pytest.mark.slow
 def test_a_mask_row_reads_its_views_with_degraded_masks(tmp_path):
     """A methods entry with a ``mask`` reads a copy of its views whose masks a ``degrade_masks``
     job degraded, under its own row id; an unknown degradation is refused when the DAG is built."""
@@ -122,6 +128,7 @@ def test_a_mask_row_reads_its_views_with_degraded_masks(tmp_path):
     assert rc != 0 and "unknown mask degradation 'blur'" in out
 
 
+@pytest.mark.slow
 def test_the_default_config_reads_the_shipped_preparations(tmp_path):
     """The default run trains nothing: its learned rows, the diff path's learned start and the GA
     read the files the package ships (the same weights on every machine; the other configs make
@@ -142,6 +149,7 @@ def test_the_default_config_reads_the_shipped_preparations(tmp_path):
 
 
 @pytest.mark.parametrize("profile", ["slurm", "kubernetes"])
+@pytest.mark.slow
 def test_cluster_profiles_dry_run(profile, tmp_path):
     """The executor profiles plan the default DAG: SLURM on a shared filesystem, Kubernetes with
     every file going through the storage provider; reconstructions ask for a GPU with cuda."""
@@ -194,6 +202,7 @@ def undeclared(workdir: Path) -> list[str]:
     return sorted(out + [p.name for p in workdir.iterdir() if p.name != ".snakemake"])
 
 
+@pytest.mark.slow
 def test_storage_run_catches_undeclared_files(tmp_path):
     """The check the smoke run relies on: a rule that writes a file beside its output without
     declaring it leaves it behind, where :func:`undeclared` finds it; declared files do not."""
