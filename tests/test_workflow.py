@@ -73,18 +73,18 @@ def test_diff_on_a_tree_case_is_refused(tmp_path):
 
 @pytest.mark.slow
 def test_config_cases_narrow_every_row(tmp_path):
-    """``--config 'cases=[cup_t1]'`` on the default config runs just that case, though the rows
+    """``--config 'cases=[cup_goblet]'`` on the default config runs just that case, though the rows
     keep their own case lists (they are intersected with ``cases``)."""
     res = snakemake("-n", "--cores", "1", "--configfile", str(ROOT / "pipelines/config/default.yaml"),
-                    "--directory", str(tmp_path), "--config", "cases=[cup_t1]")
+                    "--directory", str(tmp_path), "--config", "cases=[cup_goblet]")
     out = res.stdout + res.stderr
     assert res.returncode == 0, out
     runs = {line.split("results/reconstruct/")[1].split("/")[1] for line in out.splitlines()
             if "output: results/reconstruct/" in line}
-    assert runs == {"cup_t1"}
+    assert runs == {"cup_goblet"}
     for row in ("diff_1v", "learned_1v", "occnet_1v", "diffsdf_6v", "ngp_16v", "colmap_sfm_16v", "visual_hull_6v",
                 "line_convex_hull"):
-        assert f"results/reconstruct/{row}/cup_t1/s0" in out
+        assert f"results/reconstruct/{row}/cup_goblet/s0" in out
     assert "ga_1v" not in out  # the GA row lists only trees
 
 
