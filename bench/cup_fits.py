@@ -10,7 +10,7 @@ default: run a seed once first to time warm fits, as the workflow's next seed is
 one process reuse its traced programs; to time what a workflow job pays (a new process loading
 the stored programs, ``ipm.render.programs``), run it once per fit. Writes each
 fit's folder (``ipm.methods.diff.write_fit``: trace.csv, params.json) under ``--out`` and one
-JSON line per fit to ``--out``/fits.jsonl; prints the same lines. A trace row's time is its
+JSON line per fit (with the machine and its CPU kind) to ``--out``/fits.jsonl; prints the same lines. A trace row's time is its
 evaluation's; a row more than ``--event-ms`` after the one before counts as an event.
 """
 from __future__ import annotations
@@ -60,9 +60,12 @@ def main() -> None:
     from ipm.methods.diff import fit, write_fit
     from ipm.synth import synthesize
 
+    from ipm.runtime import machine_info, machine_line
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     device = str(jax.devices()[0])
+    machine = machine_line(machine_info(args.threads, args.device))  # with the CPU's kind: times differ by it
     with tempfile.TemporaryDirectory() as tmp:
         for case in args.cases:
             synthesize(case, Path(tmp) / case, n_views=1, res=args.input_res, spp=32, progress=False)
@@ -75,7 +78,7 @@ def main() -> None:
                                                   memetic_batch=batch == "on")
                     seconds = time.perf_counter() - t0
                     write_fit(out / f"{case}_s{seed}_batch_{batch}", problem, z, trace, prof, {}, seconds)
-                    row = {"case": case, "seed": seed, "memetic_batch": batch, "device": device,
+                    row = {"case": case, "seed": seed, "memetic_batch": batch, "device": device, "machine": machine,
                            "seconds": round(seconds, 2), "evaluations": len(trace),
                            "final_loss": float(trace["best"].iloc[-1]), **split_time(trace, args.event_ms / 1000)}
                     print(json.dumps(row), flush=True)

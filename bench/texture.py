@@ -154,8 +154,10 @@ def main() -> None:
             rows += [repaint(c, work, n, s, variant) for c in args.cases for n in args.inputs for s in args.seeds
                      for _ in range(args.repeat)]
     from ipm.io.atomic import write_json
+    from ipm.runtime import machine_info, machine_line
 
-    write_json(out / "texture.json", rows)
+    machine = machine_line(machine_info(args.threads))  # the fits' and repaints' seconds depend on the CPU's kind
+    write_json(out / "texture.json", [{**r, "machine": machine} for r in rows])
     (out / "texture.md").write_text(table(rows) + "\n")
     print(table(rows))
 
