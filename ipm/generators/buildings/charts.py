@@ -113,21 +113,20 @@ def charts(kinds: list[tuple[str, int, int]], positions: np.ndarray, parts: np.n
     parameters, each solid's part and whether the building has it. Each part's faces are packed
     into its own unit square. Every solid of a kind is charted in one call (a building's layout
     has about thirty groups of solids and two kinds)."""
-    groups, offset, solid = [], 0, 0
+    groups, offset, solid, of_kind = [], 0, 0, {}  # of_kind: solids of each kind so far
     for kind, n, k in kinds:
-        groups.append((kind, n, positions[offset:offset + n * k].reshape(n, k, 3), solid))
+        groups.append((kind, n, positions[offset:offset + n * k].reshape(n, k, 3), solid, of_kind.get(kind, 0)))
         offset += n * k
         solid += n
+        of_kind[kind] = of_kind.get(kind, 0) + n
     charted = {}  # kind -> (local (n, T, 3, 2), sizes (n, faces, 2)) of all its solids, in layout order
-    for kind in dict.fromkeys(kind for kind, _, _, _ in groups):
-        charted[kind] = _face_charts(kind, np.concatenate([v for g, _, v, _ in groups if g == kind]))
-    taken = dict.fromkeys(charted, 0)
+    for kind in of_kind:
+        charted[kind] = _face_charts(kind, np.concatenate([v for g, _, v, _, _ in groups if g == kind]))
     units, sizes, tri_face, face_part, face_keep = [], [], [], [], []
     faces_before = 0
-    for kind, n, _, solid in groups:
+    for kind, n, _, solid, first in groups:  # first: the group's index among its kind's solids
         face = TEMPLATE_CHARTS[kind][1]
-        local, size = (a[taken[kind]:taken[kind] + n] for a in charted[kind])
-        taken[kind] += n
+        local, size = (a[first:first + n] for a in charted[kind])
         n_faces = size.shape[1]
         units.append(local.reshape(-1, 3, 2))
         tri_face.append((faces_before + n_faces * np.arange(n)[:, None] + face[None]).ravel())
