@@ -139,7 +139,7 @@ def _run(args) -> int:
     from ipm.errors import UserError
     from ipm.runtime import configure_threads
 
-    configure_threads(args.threads, args.device)
+    configure_threads(args.threads, args.device, training=args.command == "prepare")
     if args.command == "synth":
         from ipm.runtime import set_mitsuba_variant
         from ipm.synth import synthesize

@@ -23,18 +23,27 @@ _LLVM_CANDIDATES = (
 )
 
 
-def configure_threads(threads: int, device: str = "cpu") -> None:
-    """Limit XLA (must run before ``import jax``) and BLAS to ``threads`` host threads.
+QUICK_COMPILE = "--xla_cpu_use_fusion_emitters=false"
+"""XLA's older CPU code generator for fusions: programs compile in about half the time and run as
+fast; their float results differ from the default's in the last bits (docs/decisions.md,
+'Compile flag')."""
+
+
+def configure_threads(threads: int, device: str = "cpu", training: bool = False) -> None:
+    """Limit XLA (must run before ``import jax``) and BLAS to ``threads`` host threads, and compile
+    with :data:`QUICK_COMPILE` unless ``training`` (the shipped weights were trained with XLA's
+    default code generator, and a fresh training reproduces them bit for bit with it).
 
     On ``device="cpu"`` JAX is kept on the host so it never probes for accelerators.
     """
     threads = max(1, int(threads))
     flags = os.environ.get("XLA_FLAGS", "")
     if "intra_op_parallelism_threads" not in flags:
-        os.environ["XLA_FLAGS"] = (
-            f"{flags} --xla_cpu_multi_thread_eigen={'true' if threads > 1 else 'false'} "
-            f"intra_op_parallelism_threads={threads}"
-        ).strip()
+        flags = (f"{flags} --xla_cpu_multi_thread_eigen={'true' if threads > 1 else 'false'} "
+                 f"intra_op_parallelism_threads={threads}")
+    if not training and "xla_cpu_use_fusion_emitters" not in flags:
+        flags = f"{flags} {QUICK_COMPILE}"
+    os.environ["XLA_FLAGS"] = flags.strip()
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
     if device == "cpu":

@@ -11,10 +11,10 @@ from pathlib import Path
 
 
 @contextlib.contextmanager
-def _logged(log: str | None, threads: int, mitsuba: bool = False, device: str = "cpu"):
+def _logged(log: str | None, threads: int, mitsuba: bool = False, device: str = "cpu", training: bool = False):
     from ipm.runtime import configure_threads
 
-    configure_threads(threads, device)
+    configure_threads(threads, device, training)
     stream = open(log, "w") if log else None
     old = sys.stderr
     if stream:
@@ -62,7 +62,7 @@ def reference_step(case: str, reference: str, gallery: str | None = None, log=No
 
 def prepare_step(method: str, generator: str, out: str, profile: str, seed: int, threads: int = 1, log=None):
     """A method's per-generator preparation (the GA's gene statistics), cached by the DAG."""
-    with _logged(log, threads):
+    with _logged(log, threads, training=True):
         from ipm.methods import METHODS
 
         METHODS[method].prepare(generator, out, profile=profile, seed=seed, progress=True)

@@ -14,11 +14,9 @@ if "IPM_JAX_CACHE" not in os.environ:
 else:
     _OWN_CACHE = None
 
-# XLA's older CPU code generator for fusions: programs compile in about half the time (a
-# building's generator pullback 16 s -> 7.5 s) and run as fast; their float results differ in the
-# last bits, so the product keeps XLA's default (its shipped trainings and tables were made with
-# it) and the tests, which check behaviour and tolerances, take the quicker compiles
-# (docs/decisions.md, 'Test suite compile flag'). Inherited by the processes the tests start.
+# XLA's older CPU code generator for fusions (ipm.runtime.QUICK_COMPILE) in every process the tests
+# start, trainings included: the package keeps XLA's default for trainings only (the shipped
+# weights' bit-for-bit reproduction), which the tests do not check (docs/decisions.md, 'Compile flag').
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
