@@ -38,11 +38,11 @@ def configure_threads(threads: int, device: str = "cpu", training: bool = False)
     """
     threads = max(1, int(threads))
     flags = os.environ.get("XLA_FLAGS", "")
-    if "intra_op_parallelism_threads" not in flags:
+    if not training and "xla_cpu_use_fusion_emitters" not in flags:
+        flags = f"{QUICK_COMPILE} {flags}"  # first: XLA reads flags up to the first word without "--"
+    if "intra_op_parallelism_threads" not in flags:  # a word without "--": last
         flags = (f"{flags} --xla_cpu_multi_thread_eigen={'true' if threads > 1 else 'false'} "
                  f"intra_op_parallelism_threads={threads}")
-    if not training and "xla_cpu_use_fusion_emitters" not in flags:
-        flags = f"{flags} {QUICK_COMPILE}"
     os.environ["XLA_FLAGS"] = flags.strip()
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))

@@ -56,13 +56,16 @@ def test_thread_count_follows_the_configured_threads(monkeypatch):
 
 @pytest.mark.parametrize("training", [False, True])
 def test_trainings_alone_keep_xlas_default_code_generator(training):
-    """A job compiles with the quick code generator; a training with XLA's default, unless the
-    environment already chose (as the tests' own processes do)."""
+    """A job compiles with the quick code generator (among the flags XLA reads: those before the
+    first word without "--"); a training with XLA's default, unless the environment already chose
+    (as the tests' own processes do)."""
     code = ("import os; from ipm.runtime import configure_threads; "
             f"configure_threads(1, training={training}); print(os.environ['XLA_FLAGS'])")
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     flags = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
-    assert ("--xla_cpu_use_fusion_emitters=false" in flags) != training and "intra_op_parallelism_threads=1" in flags
+    words = flags.split()
+    read = words[:next((i for i, w in enumerate(words) if not w.startswith("--")), len(words))]  # what XLA reads
+    assert ("--xla_cpu_use_fusion_emitters=false" in read) != training and "intra_op_parallelism_threads=1" in words
     chosen = {**env, "XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
     flags = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=chosen, check=True).stdout
     assert "fusion_emitters=false" not in flags
