@@ -17,10 +17,10 @@ else:
 # XLA's older CPU code generator for fusions (ipm.runtime.QUICK_COMPILE) in every process the tests
 # start, trainings included: the package keeps XLA's default for trainings only (the shipped
 # weights' bit-for-bit reproduction), which the tests do not check (docs/decisions.md, 'Compile flag').
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+from ipm.runtime import QUICK_COMPILE, configure_threads  # noqa: E402
 
-from ipm.runtime import configure_threads  # noqa: E402
+if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):  # first: XLA reads up to a bare word
+    os.environ["XLA_FLAGS"] = f"{QUICK_COMPILE} {os.environ.get('XLA_FLAGS', '')}".strip()
 
 THREADS = max(1, min(2, len(os.sched_getaffinity(0)) // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
 """Threads of a test process: 2, or its share of the CPUs where test workers run side by side."""
