@@ -139,7 +139,13 @@ def _run(args) -> int:
     from ipm.errors import UserError
     from ipm.runtime import configure_threads
 
-    configure_threads(args.threads, args.device, training=args.command == "prepare")
+    if args.command == "reconstruct":
+        from ipm.methods import METHODS
+
+        quick = METHODS[args.method].compiles
+    else:
+        quick = False
+    configure_threads(args.threads, args.device, quick_compile=quick)
     if args.command == "synth":
         from ipm.runtime import set_mitsuba_variant
         from ipm.synth import synthesize

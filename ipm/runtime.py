@@ -24,21 +24,22 @@ _LLVM_CANDIDATES = (
 
 
 QUICK_COMPILE = "--xla_cpu_use_fusion_emitters=false"
-"""XLA's older CPU code generator for fusions: programs compile in about half the time and run as
-fast; their float results differ from the default's in the last bits (docs/decisions.md,
-'Compile flag')."""
+"""XLA's older CPU code generator for fusions: a building's generator pullback compiles in half the
+time; the networks' programs (diffSDF-style's, the occupancy network's) run up to a third longer
+with it; float results differ from the default's in the last bits (docs/decisions.md, 'Compile
+flag')."""
 
 
-def configure_threads(threads: int, device: str = "cpu", training: bool = False) -> None:
-    """Limit XLA (must run before ``import jax``) and BLAS to ``threads`` host threads, and compile
-    with :data:`QUICK_COMPILE` unless ``training`` (the shipped weights were trained with XLA's
-    default code generator, and a fresh training reproduces them bit for bit with it).
+def configure_threads(threads: int, device: str = "cpu", quick_compile: bool = False) -> None:
+    """Limit XLA (must run before ``import jax``) and BLAS to ``threads`` host threads; with
+    ``quick_compile`` (a fit that compiles its programs per case: ``Method.compiles``), compile with
+    :data:`QUICK_COMPILE`, unless ``XLA_FLAGS`` already chooses.
 
     On ``device="cpu"`` JAX is kept on the host so it never probes for accelerators.
     """
     threads = max(1, int(threads))
     flags = os.environ.get("XLA_FLAGS", "")
-    if not training and "xla_cpu_use_fusion_emitters" not in flags:
+    if quick_compile and "xla_cpu_use_fusion_emitters" not in flags:
         flags = f"{QUICK_COMPILE} {flags}"  # first: XLA reads flags up to the first word without "--"
     if "intra_op_parallelism_threads" not in flags:  # a word without "--": last
         flags = (f"{flags} --xla_cpu_multi_thread_eigen={'true' if threads > 1 else 'false'} "

@@ -41,7 +41,7 @@ def ship(name: str) -> dict:
 def main(argv: list[str]) -> None:
     from ipm.runtime import configure_threads
 
-    configure_threads(1, "cpu", training=True)  # the workflow's preparation runs at one thread: the same numbers
+    configure_threads(1, "cpu")  # the workflow's preparation runs at one thread: the same numbers
     for name in argv or shipped_names():
         print(ship(name))
 

@@ -11,10 +11,10 @@ from pathlib import Path
 
 
 @contextlib.contextmanager
-def _logged(log: str | None, threads: int, mitsuba: bool = False, device: str = "cpu", training: bool = False):
+def _logged(log: str | None, threads: int, mitsuba: bool = False, device: str = "cpu", quick_compile: bool = False):
     from ipm.runtime import configure_threads
 
-    configure_threads(threads, device, training)
+    configure_threads(threads, device, quick_compile)
     stream = open(log, "w") if log else None
     old = sys.stderr
     if stream:
@@ -62,7 +62,7 @@ def reference_step(case: str, reference: str, gallery: str | None = None, log=No
 
 def prepare_step(method: str, generator: str, out: str, profile: str, seed: int, threads: int = 1, log=None):
     """A method's per-generator preparation (the GA's gene statistics), cached by the DAG."""
-    with _logged(log, threads, training=True):
+    with _logged(log, threads):
         from ipm.methods import METHODS
 
         METHODS[method].prepare(generator, out, profile=profile, seed=seed, progress=True)
@@ -74,12 +74,13 @@ def reconstruct_step(method: str, transforms: str, mesh: str, generator: str, pr
     """One reconstruction, ours or a baseline (the generator goes only to methods that take one,
     ``prepared`` only to methods with a preparation stage; ``settings`` override the profile's), with
     JAX and Mitsuba on ``device`` (the config's: cpu or cuda)."""
-    with _logged(log, threads, mitsuba=True, device=device):
+    from ipm.methods import METHODS
+
+    fn = METHODS[method]
+    with _logged(log, threads, mitsuba=True, device=device, quick_compile=fn.compiles):
         from ipm.io import write_json
-        from ipm.methods import METHODS
         from ipm.runtime import job_clock, machine_info
 
-        fn = METHODS[method]
         extra = {"generator": generator} if fn.takes_generator else {}
         if prepared:
             extra["prepared"] = prepared

@@ -15,8 +15,8 @@ else:
     _OWN_CACHE = None
 
 # XLA's older CPU code generator for fusions (ipm.runtime.QUICK_COMPILE) in every process the tests
-# start, trainings included: the package keeps XLA's default for trainings only (the shipped
-# weights' bit-for-bit reproduction), which the tests do not check (docs/decisions.md, 'Compile flag').
+# start: most tests compile more than they run; the package uses it for its diff fits only, where
+# that holds too (docs/decisions.md, 'Compile flag'). The tests check behaviour and tolerances.
 from ipm.runtime import QUICK_COMPILE, configure_threads  # noqa: E402
 
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):  # first: XLA reads up to a bare word

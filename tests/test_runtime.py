@@ -54,21 +54,23 @@ def test_thread_count_follows_the_configured_threads(monkeypatch):
     assert rt.thread_count() == len(os.sched_getaffinity(0))
 
 
-@pytest.mark.parametrize("training", [False, True])
-def test_trainings_alone_keep_xlas_default_code_generator(training):
-    """A job compiles with the quick code generator (among the flags XLA reads: those before the
-    first word without "--"); a training with XLA's default, unless the environment already chose
-    (as the tests' own processes do)."""
+@pytest.mark.parametrize("quick", [False, True])
+def test_fits_that_compile_per_case_take_the_quick_code_generator(quick):
+    """``quick_compile`` puts the quick code generator among the flags XLA reads (those before the
+    first word without "--"); without it, XLA's default; a choice in the environment stays."""
     code = ("import os; from ipm.runtime import configure_threads; "
-            f"configure_threads(1, training={training}); print(os.environ['XLA_FLAGS'])")
+            f"configure_threads(1, quick_compile={quick}); print(os.environ['XLA_FLAGS'])")
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     flags = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
     words = flags.split()
     read = words[:next((i for i, w in enumerate(words) if not w.startswith("--")), len(words))]  # what XLA reads
-    assert ("--xla_cpu_use_fusion_emitters=false" in read) != training and "intra_op_parallelism_threads=1" in words
+    assert ("--xla_cpu_use_fusion_emitters=false" in read) == quick and "intra_op_parallelism_threads=1" in words
     chosen = {**env, "XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
     flags = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=chosen, check=True).stdout
     assert "fusion_emitters=false" not in flags
+    from ipm.methods import METHODS
+
+    assert METHODS["diff"].compiles and not METHODS["diffsdf"].compiles and not METHODS["occnet"].compiles
 
 
 def _job_with_cache(folder, code: str) -> subprocess.CompletedProcess:

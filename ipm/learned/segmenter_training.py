@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("out", nargs="?", default=None, help="weights file (default: the shipped one)")
     ap.add_argument("--threads", type=int, default=2, help="CPU threads for XLA and Dr.Jit")
     args = ap.parse_args(argv)
-    configure_threads(args.threads, "cpu", training=True)
+    configure_threads(args.threads, "cpu")
     set_mitsuba_variant("cpu", args.threads)
     meta = prepare(args.out or shipped_path(), progress=True)
     print({k: meta[k] for k in ("held_out_mask_iou", "render_seconds", "train_seconds")})
