@@ -10,8 +10,9 @@ default: run a seed once first to time warm fits, as the workflow's next seed is
 one process reuse its traced programs; to time what a workflow job pays (a new process loading
 the stored programs, ``ipm.render.programs``), run it once per fit. Writes each
 fit's folder (``ipm.methods.diff.write_fit``: trace.csv, params.json) under ``--out`` and one
-JSON line per fit (with the machine and its CPU kind) to ``--out``/fits.jsonl; prints the same lines. A trace row's time is its
-evaluation's; a row more than ``--event-ms`` after the one before counts as an event.
+JSON line per fit (with the machine and its CPU kind) to ``--out``/fits.jsonl; prints the same
+lines. A trace row's time is its evaluation's; a row more than ``--event-ms`` after the one before
+counts as an event.
 """
 from __future__ import annotations
 

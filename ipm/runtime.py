@@ -40,7 +40,7 @@ def configure_threads(threads: int, device: str = "cpu", quick_compile: bool = F
     threads = max(1, int(threads))
     flags = os.environ.get("XLA_FLAGS", "")
     if quick_compile and "xla_cpu_use_fusion_emitters" not in flags:
-        flags = f"{QUICK_COMPILE} {flags}"  # first: XLA reads flags up to the first word without "--"
+        flags = f"{QUICK_COMPILE} {flags}".strip()  # first: XLA reads flags up to the first word without "--"
     if "intra_op_parallelism_threads" not in flags:  # a word without "--": last
         flags = (f"{flags} --xla_cpu_multi_thread_eigen={'true' if threads > 1 else 'false'} "
                  f"intra_op_parallelism_threads={threads}")

@@ -14,18 +14,16 @@ if "IPM_JAX_CACHE" not in os.environ:
 else:
     _OWN_CACHE = None
 
-# XLA's older CPU code generator for fusions (ipm.runtime.QUICK_COMPILE) in every process the tests
-# start: most tests compile more than they run; the package uses it for its diff fits only, where
-# that holds too (docs/decisions.md, 'Compile flag'). The tests check behaviour and tolerances.
-from ipm.runtime import QUICK_COMPILE, configure_threads  # noqa: E402
-
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):  # first: XLA reads up to a bare word
-    os.environ["XLA_FLAGS"] = f"{QUICK_COMPILE} {os.environ.get('XLA_FLAGS', '')}".strip()
+from ipm.runtime import configure_threads  # noqa: E402
 
 THREADS = max(1, min(2, len(os.sched_getaffinity(0)) // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
 """Threads of a test process: 2, or its share of the CPUs where test workers run side by side."""
 
-configure_threads(THREADS)  # before anything imports jax
+# before anything imports jax; XLA's older CPU code generator for fusions (ipm.runtime.QUICK_COMPILE)
+# here and, through XLA_FLAGS, in every process the tests start: most tests compile more than they
+# run; the package uses it for its diff fits only, where that holds too (docs/decisions.md,
+# 'Compile flag'). The tests check behaviour and tolerances.
+configure_threads(THREADS, quick_compile=True)
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
