@@ -48,12 +48,18 @@ def degrade_step(src: str, dst: str, slug: str, seed: int, log=None):
         degrade_views(src, dst, by_slug(slug), seed)
 
 
-def reference_step(case: str, reference: str, gallery: str | None = None, log=None):
-    """The case's reference mesh and truth, and its gallery sheet (the report's first row)."""
+def reference_step(case: str, reference: str, gallery: str | None = None, masks: str | None = None,
+                   n_views: int = 64, res: int = 256, log=None):
+    """The case's reference mesh and truth, its gallery sheet (the report's first row) and its
+    masks from the metric's ``n_views`` cameras at ``res`` px (cast once for every evaluation)."""
     with _logged(log, 1, mitsuba=gallery is not None):
         from ipm.synth import write_reference
 
         write_reference(case, Path(reference).parent)
+        if masks:
+            from ipm.metrics.silhouette import write_reference_masks
+
+            write_reference_masks(reference, masks, n_views, res)
         if gallery:
             from ipm.render.gallery import gallery_sheet
 
@@ -103,7 +109,7 @@ def reference_line_step(name: str, reference: str, truth: str, mesh: str, thread
 
 def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: str, row: dict, seed: int,
                   n_views: int, res: int, grid: int, gallery: str | None = None, views: str | None = None,
-                  threads: int = 1, log=None):
+                  reference_masks: str | None = None, threads: int = 1, log=None):
     """Metrics of the reconstruction in folder ``run`` (with parameter recovery where the truth and
     the fit share a generator, its counts those the input ``views`` folder shows), its gallery
     sheet, and ``row.json`` beside them (table label, kind, case split and class, seed, wall time,
@@ -126,7 +132,7 @@ def evaluate_step(reference: str, truth: str, run: str, metrics: str, preview: s
             failure_files(info["failed"], metrics, preview)
         else:
             evaluate_files(reference, mesh, metrics, n_views=n_views, res=res, grid=grid, preview_path=preview,
-                           truth=case, params=params, views=views)
+                           truth=case, params=params, views=views, reference_masks=reference_masks)
         if gallery:
             from ipm.render.gallery import gallery_sheet
 

@@ -65,7 +65,7 @@ def test_visual_hull_contains_the_object_and_scores_between_the_reference_lines(
     from ipm.metrics import evaluate_meshes
     from ipm.metrics.silhouette import raycasting_scene
     from ipm.metrics.volume import occupancy
-    from ipm.reference_lines import bounding_sphere
+    from ipm.reference_lines import bounding_sphere, convex_hull
 
     info = METHODS["visual_hull"](hemi6 / "transforms.json", tmp_path / "vh", profile="smoke", progress=False)
     assert info["views"] == 6 and (tmp_path / "vh" / "timing.json").is_file()
@@ -81,6 +81,8 @@ def test_visual_hull_contains_the_object_and_scores_between_the_reference_lines(
     m = evaluate_meshes(reference, hull, n_views=16, res=64, grid=48)
     m_sphere = evaluate_meshes(reference, bounding_sphere(reference), n_views=16, res=64, grid=48)
     assert m_sphere["iou_mean"] < m["iou_mean"] <= 1.0
+    m_convex = evaluate_meshes(reference, convex_hull(reference), n_views=16, res=64, grid=48)
+    assert m_sphere["iou_mean"] < m_convex["iou_mean"] <= 1.0  # the convex hull is the tighter reference line
 
 
 def test_baselines_refuse_too_few_views_and_unknown_profiles(hemi6, tmp_path):

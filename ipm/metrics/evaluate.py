@@ -12,7 +12,7 @@ from ipm.io.atomic import atomic_path
 from .align import shape_iou
 from .recovery import camera_recovery, parameter_recovery
 from .silhouette import (bounding_sphere, check_reference, fibonacci_cameras, finite_part, raycast_masks,
-                         silhouette_iou, silhouette_masks)
+                         read_reference_masks, silhouette_iou, silhouette_masks)
 from .volume import volumetric_iou
 
 MIN_ANGLE_DEG = 5.0  # a triangle with a smaller interior angle is a sliver
@@ -54,10 +54,11 @@ def triangle_quality(mesh: trimesh.Trimesh, radius: float) -> dict:
 
 
 def evaluate_meshes(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,
-                    grid: int = 128, seed: int = 0) -> dict:
+                    grid: int = 128, seed: int = 0, reference_masks: np.ndarray | None = None) -> dict:
     """Every metric as a flat JSON-serialisable dict (silhouette per-view IoUs under ``iou_per_view``;
-    ``shape_iou``: the same IoU after the best similarity alignment, ``ipm.metrics.align``)."""
-    masks = silhouette_masks(reference, mesh, n_views, res)  # cast once for both IoUs
+    ``shape_iou``: the same IoU after the best similarity alignment, ``ipm.metrics.align``);
+    ``reference_masks``: the reference's metric masks, if cast before (the workflow casts them once a case)."""
+    masks = silhouette_masks(reference, mesh, n_views, res, reference_masks=reference_masks)  # once for both IoUs
     sil = silhouette_iou(reference, mesh, n_views, res, masks=masks)
     sil["iou_per_view"] = sil.pop("per_view")
     shape = shape_iou(reference, mesh, n_views, res, masks=masks)
@@ -91,11 +92,12 @@ def preview_png(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, path: str, n:
 
 def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: int = 256, grid: int = 128,
                    preview_path=None, seed: int = 0, truth: dict | None = None, params: dict | None = None,
-                   views=None) -> dict:
+                   views=None, reference_masks=None) -> dict:
     """``ipm evaluate``: metrics of a mesh file against a reference file, written as JSON; with the
     case's ground truth and the reconstruction's params.json, also parameter recovery (the counts
     scored are those the input ``views`` folder's semantic images show, if given); with a
-    params.json of a withheld camera, the camera's errors."""
+    params.json of a withheld camera, the camera's errors. ``reference_masks``: the file
+    ``write_reference_masks`` made of this reference for these views and resolution."""
     from ipm.errors import UserError
     from ipm.io import load_mesh, write_json
 
@@ -103,8 +105,11 @@ def evaluate_files(reference_path, mesh_path, out_path, n_views: int = 64, res: 
     mesh = load_mesh(mesh_path, allow_empty=True)
     if n_views < 2 or res < 8 or grid < 8:
         raise UserError("need --views >= 2, --res >= 8 and --grid >= 8")
+    if reference_masks is not None:
+        reference_masks = read_reference_masks(reference_masks, reference_path, n_views, res)
     try:
-        metrics = evaluate_meshes(reference, mesh, n_views=n_views, res=res, grid=grid, seed=seed)
+        metrics = evaluate_meshes(reference, mesh, n_views=n_views, res=res, grid=grid, seed=seed,
+                                  reference_masks=reference_masks)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     if truth is not None:

@@ -5,6 +5,8 @@ independent of the (differentiable) Mitsuba renderer used for optimisation.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import trimesh
 
@@ -112,13 +114,55 @@ def raycast_masks(mesh: trimesh.Trimesh, cams: list, res: int = 256, fov_deg: fl
 
 
 def silhouette_masks(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views: int = 64, res: int = 256,
-                     fov_deg: float = FOV_DEG) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Masks of reference and reconstruction from the same cameras, framed on the reference."""
+                     fov_deg: float = FOV_DEG, reference_masks: np.ndarray | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Masks of reference and reconstruction from the same cameras, framed on the reference;
+    ``reference_masks``: the reference's, if already cast for these arguments (:func:`read_reference_masks`)."""
     check_reference(reference)
     center, radius = bounding_sphere(reference)
     cams = fibonacci_cameras(center, radius, n_views, fov_deg)
-    return (raycast_masks(reference, cams, res, fov_deg),
-            raycast_masks(finite_part(mesh), cams, res, fov_deg), cams)
+    ref = raycast_masks(reference, cams, res, fov_deg) if reference_masks is None else reference_masks
+    return ref, raycast_masks(finite_part(mesh), cams, res, fov_deg), cams
+
+
+def write_reference_masks(reference_path, out_path, n_views: int = 64, res: int = 256,
+                          fov_deg: float = FOV_DEG) -> None:
+    """The reference's masks from the metric's cameras, cast once per case for every evaluation of
+    it (an npz: the masks bit-packed, the arguments and the reference file's SHA-256), atomically."""
+    import hashlib
+
+    from ipm.io import load_mesh
+    from ipm.io.atomic import atomic_path
+
+    reference = load_mesh(reference_path)
+    check_reference(reference)
+    cams = fibonacci_cameras(*bounding_sphere(reference), n_views, fov_deg)
+    masks = raycast_masks(reference, cams, res, fov_deg)
+    sha = hashlib.sha256(Path(reference_path).read_bytes()).hexdigest()
+    with atomic_path(out_path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, masks=np.packbits(masks, axis=-1), shape=np.array(masks.shape), fov_deg=fov_deg,
+                            reference_sha256=sha)
+
+
+def read_reference_masks(path, reference_path, n_views: int, res: int, fov_deg: float = FOV_DEG) -> np.ndarray:
+    """The masks :func:`write_reference_masks` wrote for the file ``reference_path``; a file made
+    for other arguments or another reference is refused with one line (``UserError``)."""
+    import hashlib
+
+    from ipm.errors import UserError
+
+    try:
+        with np.load(path) as data:
+            shape, packed = tuple(int(k) for k in data["shape"]), data["masks"]
+            fov, sha = float(data["fov_deg"]), str(data["reference_sha256"])
+    except (OSError, KeyError, ValueError) as exc:
+        raise UserError(f"reference masks {path}: not a reference-masks file ({exc})") from None
+    if shape != (n_views, res, res) or fov != fov_deg:
+        raise UserError(f"reference masks {path}: cast for {shape[0]} views at {shape[-1]} px, "
+                        f"{fov:g} degrees, not {n_views} views at {res} px, {fov_deg:g} degrees")
+    if sha != hashlib.sha256(Path(reference_path).read_bytes()).hexdigest():
+        raise UserError(f"reference masks {path}: cast from another file than {reference_path}")
+    return np.unpackbits(packed, axis=-1, count=res).astype(bool).reshape(shape)
 
 
 def view_ious(ref: np.ndarray, rec: np.ndarray) -> np.ndarray:

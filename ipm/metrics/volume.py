@@ -8,6 +8,9 @@ from ipm.runtime import thread_count
 from .silhouette import check_reference, finite_part, open3d, raycasting_scene
 
 OCCUPANCY_RAYS = 3  # odd number of parity rays per point, majority vote guards against edge/vertex hits
+COLUMN_FILL = 0.125
+"""Share of a group's common box its parts' boxes must fill for :func:`occupancy_grid` to cast it a
+grid line at a time (a ray per line: cups and buildings) rather than a ray per point (a tree's leaves)."""
 
 
 def _welded(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -61,7 +64,7 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     boxes are pairwise disjoint share one scene (:func:`disjoint_groups`): a point is inside at
     most one of them, the others add even crossings, so the group's parity is their union. That
     keeps a tree's ~10^4 leaves to tens or hundreds of scenes. Only points inside a member's
-    bounding box are cast. Grid points go faster through :func:`occupancy_grid` (same result).
+    bounding box are cast. Grid points go faster through :func:`occupancy_grid` (the same result off the surface).
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     inside = np.zeros(len(points), dtype=bool)
@@ -98,8 +101,12 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
 
 
 def occupancy_grid(mesh: trimesh.Trimesh, bounds: np.ndarray, grid: int) -> np.ndarray:
-    """:func:`occupancy` at ``voxel_centres(bounds, grid)``, equal to it but without searching:
-    a part's box is an index box of the grid, so each group's candidates are gathered at once."""
+    """:func:`occupancy` at ``voxel_centres(bounds, grid)`` without searching: a part's box is an
+    index box of the grid, so each group's candidates are gathered at once. A group whose boxes
+    fill at least :data:`COLUMN_FILL` of their common box is cast a grid line at a time
+    (:func:`_cast_columns`: the same ray parity from one ray per line and axis), else a ray per
+    point and sample as :func:`occupancy` does; the two agree but where a ray meets an edge or a
+    vertex exactly, which each outvotes with its other two rays."""
     axes = _grid_axes(bounds, grid)
     inside = np.zeros(grid**3, dtype=bool)
     if len(mesh.faces) == 0:
@@ -110,10 +117,45 @@ def occupancy_grid(mesh: trimesh.Trimesh, bounds: np.ndarray, grid: int) -> np.n
     extent = np.stack([np.searchsorted(axes[k], hi[:, k], "right") for k in range(3)], axis=1) - start
     for members, group_faces in zip(groups, faces):
         _, ix, iy, iz = _index_boxes(start[members], extent[members])
-        if ix.size:
+        if not ix.size:
+            continue
+        first, stop = start[members].min(axis=0), (start[members] + np.maximum(extent[members], 0)).max(axis=0)
+        if ix.size >= COLUMN_FILL * np.prod(stop - first):
+            block = _cast_columns(welded, group_faces, [axes[k][first[k]:stop[k]] for k in range(3)])
+            inside[(ix * grid + iy) * grid + iz] |= block[ix - first[0], iy - first[1], iz - first[2]]
+        else:
             points = np.stack([axes[0][ix], axes[1][iy], axes[2][iz]], axis=1)
             inside[(ix * grid + iy) * grid + iz] |= _cast(welded, group_faces, points)
     return inside
+
+
+def _cast_columns(welded: trimesh.Trimesh, faces: np.ndarray, centres: list[np.ndarray]) -> np.ndarray:
+    """Ray-parity occupancy (nx, ny, nz) bool of the closed parts made of ``faces`` at the grid
+    points ``centres`` (one array per axis): along each axis one ray per grid line, from outside
+    the box, lists its crossings; a point is inside on that axis if an odd number lie before it,
+    and inside if so on at least two of the three axes (:data:`OCCUPANCY_RAYS` rays, as
+    :func:`_cast` gives each point)."""
+    o3d = open3d()
+    scene = raycasting_scene(trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False))
+    shape = tuple(len(c) for c in centres)
+    votes = np.zeros(shape, np.uint8)
+    for a in range(3):
+        b, c = [k for k in range(3) if k != a]
+        across_b, across_c = np.meshgrid(centres[b], centres[c], indexing="ij")
+        rays = np.zeros((across_b.size, 6), np.float32)
+        rays[:, b], rays[:, c] = across_b.ravel(), across_c.ravel()
+        rays[:, a] = centres[a][0] - 1.0 - (centres[a][-1] - centres[a][0])  # before the box: outside
+        rays[:, 3 + a] = 1.0
+        hits = scene.list_intersections(o3d.core.Tensor(rays), nthreads=thread_count())
+        per_ray = np.diff(hits["ray_splits"].numpy().astype(np.int64))
+        ray = np.repeat(np.arange(len(rays)), per_ray)
+        where = rays[ray, a].astype(np.float64) + hits["t_hit"].numpy().astype(np.float64)
+        first = np.searchsorted(centres[a], where, side="right")  # the points this crossing lies before
+        flips = np.zeros((len(rays), shape[a] + 1), np.uint8)
+        np.add.at(flips, (ray, first), 1)
+        odd = (np.cumsum(flips[:, :-1], axis=1, dtype=np.int64) & 1).astype(np.uint8)
+        votes += np.moveaxis(odd.reshape(shape[b], shape[c], shape[a]), 2, a)
+    return votes >= 2
 
 
 def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,7 @@
 rule evaluate:
     input:
         reference=rules.reference.output.reference,
+        reference_masks=rules.reference.output.masks,
         truth=rules.reference.output.truth,
         run="results/reconstruct/{row}/{case}/s{seed}",
         views=recovery_views,

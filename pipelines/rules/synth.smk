@@ -9,6 +9,7 @@ rule reference:
             subcategory="{case}",
             labels={"case": "{case}", "row": "reference", "seed": "-"},
         ),
+        masks="results/synth/{case}/reference_masks.npz",
     log:
         "logs/reference/{case}.log",
     benchmark:
@@ -19,6 +20,9 @@ rule reference:
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        n_views=config["evaluate"]["views"],
+        res=config["evaluate"]["res"],
     script:
         "../scripts/reference.py"
 

@@ -4,4 +4,5 @@ evaluate_step(reference=snakemake.input.reference, truth=snakemake.input.truth, 
               metrics=snakemake.output.metrics, preview=snakemake.output.preview, gallery=snakemake.output.gallery,
               row=snakemake.params.row, seed=int(snakemake.wildcards.seed), n_views=snakemake.params.n_views,
               res=snakemake.params.res, grid=snakemake.params.grid, views=snakemake.input.get("views") or None,
+              reference_masks=snakemake.input.reference_masks,
               threads=snakemake.threads, log=snakemake.log[0])

@@ -1,4 +1,5 @@
 from ipm.workflow import reference_step
 
 reference_step(case=snakemake.wildcards.case, reference=snakemake.output.reference,
-               gallery=snakemake.output.gallery, log=snakemake.log[0])
+               gallery=snakemake.output.gallery, masks=snakemake.output.masks, n_views=snakemake.params.n_views,
+               res=snakemake.params.res, log=snakemake.log[0])
