@@ -144,8 +144,8 @@ def _failed(note) -> bool:
 def _runs_where(df: pd.DataFrame, label: str, cases: list[str], which: pd.Series, words: str | None = None) -> str:
     """``label``'s runs on ``cases`` where ``which`` holds, one per run with its note (or ``words``),
     for a cell's ``title``."""
-    runs = df[(df["label"] == label) & df["case"].isin(cases) & which]
-    return "; ".join(f"{r.case} seed {int(r.seed)}: {words or r.note}" for r in runs.itertuples())
+    runs = df.loc[(df["label"] == label) & df["case"].isin(cases) & which, ["case", "seed", "note"]]
+    return "; ".join(f"{case} seed {int(seed)}: {words or note}" for case, seed, note in runs.itertuples(False, None))
 
 
 FAMILIES = {"in": "made by the class's generator", "out": "built by independent code", "all": "all of them"}

@@ -116,9 +116,10 @@ def method_name(wildcards):
 
 
 def reconstruct_priority(wildcards):
-    """The longest methods first (the GA, instant-NGP-style, then ours): a long job started last
-    ends the run alone."""
-    return METHODS[method_of(wildcards)["name"]].length
+    """The longest methods first (the GA, instant-NGP-style, then ours), and every reconstruction
+    before the evaluations, appearance scores and previews (priority 0), which fill the run's end:
+    a long job started last ends the run alone."""
+    return METHODS[method_of(wildcards)["name"]].length + 1
 
 
 def method_views(wildcards):

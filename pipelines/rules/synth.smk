@@ -14,6 +14,8 @@ rule reference:
         "logs/reference/{case}.log",
     benchmark:
         "logs/benchmark/reference/{case}.tsv"
+    # before the reconstructions (as every view set): short, and every later job needs one
+    priority: 4
     conda:
         "../envs/ipm.yaml"
     threads: 1
@@ -34,6 +36,9 @@ rule synth:
         "logs/synth/{case}/{layout}{n}.log",
     benchmark:
         "logs/benchmark/synth/{case}/{layout}{n}.tsv"
+    # before the reconstructions: short jobs every later one waits for; a view set rendered late
+    # makes a chain (views, baseline, evaluation) that ends the run with one core idle
+    priority: 4
     conda:
         "../envs/ipm.yaml"
     threads: 1
