@@ -125,12 +125,17 @@ def silhouette_masks(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views:
     return ref, raycast_masks(finite_part(mesh), cams, res, fov_deg), cams
 
 
+def _sha256(path) -> str:
+    """SHA-256 of the file at ``path`` (what identifies a reference the masks were cast from)."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def write_reference_masks(reference_path, out_path, n_views: int = 64, res: int = 256,
                           fov_deg: float = FOV_DEG) -> None:
     """The reference's masks from the metric's cameras, cast once per case for every evaluation of
     it (an npz: the masks bit-packed, the arguments and the reference file's SHA-256), atomically."""
-    import hashlib
-
     from ipm.io import load_mesh
     from ipm.io.atomic import atomic_path
 
@@ -138,7 +143,7 @@ def write_reference_masks(reference_path, out_path, n_views: int = 64, res: int 
     check_reference(reference)
     cams = fibonacci_cameras(*bounding_sphere(reference), n_views, fov_deg)
     masks = raycast_masks(reference, cams, res, fov_deg)
-    sha = hashlib.sha256(Path(reference_path).read_bytes()).hexdigest()
+    sha = _sha256(reference_path)
     with atomic_path(out_path) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, masks=np.packbits(masks, axis=-1), shape=np.array(masks.shape), fov_deg=fov_deg,
                             reference_sha256=sha)
@@ -147,8 +152,6 @@ def write_reference_masks(reference_path, out_path, n_views: int = 64, res: int 
 def read_reference_masks(path, reference_path, n_views: int, res: int, fov_deg: float = FOV_DEG) -> np.ndarray:
     """The masks :func:`write_reference_masks` wrote for the file ``reference_path``; a file made
     for other arguments or another reference is refused with one line (``UserError``)."""
-    import hashlib
-
     from ipm.errors import UserError
 
     try:
@@ -160,7 +163,7 @@ def read_reference_masks(path, reference_path, n_views: int, res: int, fov_deg: 
     if shape != (n_views, res, res) or fov != fov_deg:
         raise UserError(f"reference masks {path}: cast for {shape[0]} views at {shape[-1]} px, "
                         f"{fov:g} degrees, not {n_views} views at {res} px, {fov_deg:g} degrees")
-    if sha != hashlib.sha256(Path(reference_path).read_bytes()).hexdigest():
+    if sha != _sha256(reference_path):
         raise UserError(f"reference masks {path}: cast from another file than {reference_path}")
     return np.unpackbits(packed, axis=-1, count=res).astype(bool).reshape(shape)
 

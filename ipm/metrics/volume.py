@@ -48,11 +48,15 @@ def _components(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray, np.
     return welded, lo, hi, groups, [faces[bounds[g]:bounds[g + 1]] for g in range(len(groups))]
 
 
+def _group_scene(welded: trimesh.Trimesh, faces: np.ndarray):
+    """The ray casting scene of the closed parts made of ``faces`` (a :func:`disjoint_groups` group)."""
+    return raycasting_scene(trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False))
+
+
 def _cast(welded: trimesh.Trimesh, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Ray-parity occupancy (N,) bool of ``points`` w.r.t. the closed parts made of ``faces``."""
-    part = trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False)
-    occ = raycasting_scene(part).compute_occupancy(open3d().core.Tensor(points.astype(np.float32)),
-                                                   nsamples=OCCUPANCY_RAYS, nthreads=thread_count()).numpy()
+    occ = _group_scene(welded, faces).compute_occupancy(open3d().core.Tensor(points.astype(np.float32)),
+                                                        nsamples=OCCUPANCY_RAYS, nthreads=thread_count()).numpy()
     return occ > 0.5
 
 
@@ -136,7 +140,7 @@ def _cast_columns(welded: trimesh.Trimesh, faces: np.ndarray, centres: list[np.n
     and inside if so on at least two of the three axes (:data:`OCCUPANCY_RAYS` rays, as
     :func:`_cast` gives each point)."""
     o3d = open3d()
-    scene = raycasting_scene(trimesh.Trimesh(welded.vertices, welded.faces[faces], process=False))
+    scene = _group_scene(welded, faces)
     shape = tuple(len(c) for c in centres)
     votes = np.zeros(shape, np.uint8)
     for a in range(3):
