@@ -5,6 +5,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -86,3 +87,43 @@ def test_segmentation_scores_masks_and_groups_them_by_class_family_and_backdrop(
     assert out["all"]["colour"] == {"mean": 0.7, "worst": 0.5, "n": 3}
     assert out["cups in"]["learned"] == {"mean": 0.85, "worst": 0.8, "n": 2}
     assert out["table"]["learned"]["mean"] == 0.95 and out["buildings out"]["colour"]["n"] == 1
+
+
+def test_compile_profile_adds_up_processes_by_program_and_test():
+    """Totals over processes; programs ranked by compile seconds with their cache hits; tests by
+    compile, trace and lowering seconds (a record outside a test goes to "-")."""
+    prof = _script("compile_profile")
+    worker = {"cpu_s": 10.0, "records": [["miss", "t::a", "jit_fn", 0.0], ["compile", "t::a", "jit_fn", 3.0],
+                                         ["trace", "t::a", None, 0.5], ["hit", "t::b", "jit_fn", 0.0],
+                                         ["read", "t::b", None, 0.1], ["lower", "t::b", None, 0.25]]}
+    job = {"cpu_s": 4.0, "records": [["miss", "-", "jit_inline", 0.0], ["compile", "-", "jit_inline", 1.0],
+                                     ["compile", "t::a", "jit_fn", 2.0]]}
+    out = prof.summarize([worker, job], top=5)
+    assert out["processes"] == 2
+    assert out["totals"] == {"cpu_s": 14.0, "compile_s": 6.0, "trace_s": 0.5, "lower_s": 0.2, "read_s": 0.1,
+                             "hits": 1, "misses": 2}
+    assert out["programs"] == [{"program": "jit_fn", "compiles": 2, "seconds": 5.0, "hits": 1},
+                               {"program": "jit_inline", "compiles": 1, "seconds": 1.0, "hits": 0}]
+    assert out["tests"] == [{"test": "t::a", "seconds": 5.5}, {"test": "-", "seconds": 1.0},
+                            {"test": "t::b", "seconds": 0.2}]
+    assert "| jit_fn | 2 | 5.0 | 1 |" in prof.markdown(out)
+
+
+@pytest.mark.slow
+def test_compile_profile_records_a_process_it_starts(tmp_path, monkeypatch):
+    """The hook in a real process: a jitted program's compile is recorded under its name, with the
+    test running at the time, and the process's CPU time."""
+    import json
+    import sys
+
+    code = ("import ipm.runtime as r; r.configure_threads(1); import jax, jax.numpy as jnp\n"
+            "def sine_gram(x):\n    return jnp.sin(x) @ x.T\n"
+            "jax.jit(sine_gram)(jnp.ones((64, 64))).block_until_ready()")
+    monkeypatch.setenv("IPM_JAX_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "out.json"
+    rc = _script("compile_profile").main(["--out", str(out), "--", sys.executable, "-c", code])
+    summary = json.loads(out.read_text())
+    assert rc == 0 and summary["processes"] == 1 and summary["totals"]["cpu_s"] > 0, summary
+    assert summary["totals"]["misses"] >= 1 and summary["totals"]["compile_s"] > 0, summary
+    assert any(p["program"] == "jit_sine_gram" and p["compiles"] == 1 for p in summary["programs"]), summary
+    assert summary["tests"][0]["test"].startswith("tests/test_bench.py::test_compile_profile_records"), summary

@@ -159,8 +159,9 @@ def test_without_semantic_images_the_loss_is_the_silhouette(building_views):
 @pytest.mark.slow
 def test_renderer_choice_with_window_masks(building_views):
     """``auto`` takes the JAX renderer with window masks too (a z-buffer and edge sampling,
-    ``ipm.render.edges``), whose loss equals Mitsuba's within render noise, with and without the
-    window term; ``mitsuba`` stays selectable."""
+    ``ipm.render.edges``), whose loss at the fits' supersampling (the programs of the test above)
+    equals Mitsuba's at 16 samples per pixel within render noise, with and without the window
+    term; ``mitsuba`` stays selectable."""
     from ipm.render.edges import EdgeRenderer
     from ipm.render.silhouette import SilhouetteRenderer
 
@@ -171,8 +172,8 @@ def test_renderer_choice_with_window_masks(building_views):
     for window_weight in (1.0, 0.0):
         weights = dict(window_weight=window_weight)
         assert isinstance(Objective(problem, views, 48, 2, get_profile("smoke", **weights).objective).renderer, EdgeRenderer)
-        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, spp=16, **weights).objective)
-                for r in ("jax", "mitsuba")]
+        pair = [Objective(problem, views, 48, 2, get_profile("smoke", renderer=r, **spp, **weights).objective)
+                for r, spp in (("jax", {}), ("mitsuba", {"spp": 16}))]
         assert isinstance(pair[0].renderer, EdgeRenderer) and isinstance(pair[1].renderer, SilhouetteRenderer)
         losses = [np.mean([o(z, seed=s)[0] for s in range(4)]) for o in pair]
         assert losses[0] == pytest.approx(losses[1], rel=0.1)
