@@ -18,6 +18,8 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
+from ipm.io.atomic import write_json
+
 HOOK = Path(__file__).resolve().parent / "compile_hook"
 
 
@@ -47,7 +49,7 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
     tests: Counter = Counter()
     for p in processes:
         for kind, test, program, seconds in p["records"]:
-            totals[_TOTAL[kind]] += seconds if kind in ("compile", "trace", "lower", "read") else 1
+            totals[_TOTAL[kind]] += seconds if _TOTAL[kind].endswith("_s") else 1
             if kind == "compile":
                 programs[program or "?"].update(compiles=1, seconds=seconds)
             elif kind == "hit":
@@ -85,10 +87,7 @@ def main(argv=None) -> int:
         summary = {"command": [Path(command[0]).name, *command[1:]], "exit_status": rc, "wall_s": round(wall, 1),
                    **summarize(read_processes(Path(folder)), args.top)}
     print(markdown(summary))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    part = args.out.with_name(args.out.name + ".part")
-    part.write_text(json.dumps(summary, indent=1))
-    part.replace(args.out)
+    write_json(args.out, summary)  # atomically, its folder made
     return rc
 
 

@@ -28,8 +28,11 @@ if _FOLDER:
 
     def _on_duration(event: str, seconds: float, **_):
         kind = _EVENTS.get(event)
-        if kind is not None:
-            _records.append((kind, _test(), _state["program"] if kind == "compile" else None, seconds))
+        if kind == "compile":  # the program its cache miss named; "?" where none was logged
+            _records.append((kind, _test(), _state["program"], seconds))
+            _state["program"] = None
+        elif kind is not None:
+            _records.append((kind, _test(), None, seconds))
 
     class _CacheLog(logging.Handler):
         """JAX's compiler log names each program as it looks it up in the persistent cache (before
