@@ -304,7 +304,7 @@ def fresh_programs():
     """The renderer's program builders emptied before and after (their programs hold how they were built)."""
     from ipm.render import edges
 
-    builders = (edges._render_fn, edges._class_render_fn, edges._silhouette_loss, edges._class_loss_fn)
+    builders = (edges._render_fn, edges._class_render_fn, edges._loss_fn, edges._silhouette_loss, edges._class_loss_fn)
 
     def clear():
         for b in builders:

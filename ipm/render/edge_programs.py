@@ -101,6 +101,25 @@ def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int],
     return _stored(fn, "class_render", width, height, ss, budgets, n_classes, *(("cull",) if cull else ()))
 
 
+@lru_cache(maxsize=64)
+def _loss_fn(program: Callable, width: int, height: int, ss: int, budget: int, batched: bool = False):
+    """jit(z, constants, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed
+    per view): the generator's vertices ``program(z, constants)`` (:func:`split`) and pullback around
+    :func:`_silhouette_loss` in one program. The faces and the problem's constants are arguments,
+    not constants (XLA would fold them into the program at every compilation, and a new case or
+    camera would compile anew). ``batched``: over a leading axis of ``z`` and ``jitter``
+    (individuals of one topology)."""
+    render = _silhouette_loss(width, height, ss, budget, batched)
+    vertices_of = jax.vmap(program, in_axes=(0, None)) if batched else program
+
+    def fn(z, constants, faces, targets, w2c, focal, jitter):
+        vertices, pullback = jax.vjp(lambda z: vertices_of(z, constants), z)
+        loss, grad, needed = render.inline(vertices, faces, targets, w2c, focal, jitter)
+        return loss, pullback(grad)[0], needed
+
+    return jax.jit(fn)
+
+
 def split(vertex_fn: Callable) -> tuple[Callable, np.ndarray]:
     """``(program(z, constants), constants)`` of a vertex function: a ``BoundVertices``'s own
     (``ipm.problem``), or any other ``f(z)`` as a program that ignores its (empty) constants."""
@@ -156,7 +175,8 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
     """(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
     d vertices, spans and fragments needed per view (n, 2)) with the class-mask terms ``highlight``
     (a weight per class, pyramid levels, loss; class targets (n, K, H, W)). The generator is not in
-    the program: its vector-Jacobian product is compiled once (:func:`_pullback`).
+    the program (a building's takes longer to compile than the renderer, and each resolution and
+    budget is a program of its own): its vector-Jacobian product is compiled once (:func:`_pullback`).
     ``cull``: triangles facing away are not drawn (closed solids)."""
     weights, levels, kind = highlight
 
@@ -194,22 +214,7 @@ def _stored(fn: Callable, *name) -> StoredProgram:
 
 
 @lru_cache(maxsize=64)
-def _vertices(program: Callable, batched: bool = False):
-    """jit(z, constants) -> the generator's flattened vertices ``program(z, constants)``, over a
-    leading axis of ``z`` when ``batched`` (``program`` itself where it is compiled already)."""
-    if batched:
-        return jax.jit(jax.vmap(program, in_axes=(0, None)))
-    return program if hasattr(program, "lower") else jax.jit(program)
-
-
-@lru_cache(maxsize=64)
-def _pullback(program: Callable, batched: bool = False):
+def _pullback(program: Callable):
     """jit(z, constants, d loss / d vertices) -> d loss / d z: the vector-Jacobian product of the
-    generator's vertices ``program(z, constants)``, over a leading axis of ``z`` and the cotangent
-    when ``batched``. Compiled once per generator topology, apart from the renderer's programs (a
-    building's takes longer to compile than the renderer, and each resolution and budget is a
-    renderer program of its own)."""
-    def pullback(z, constants, cotangent):
-        return jax.vjp(lambda z: program(z, constants), z)[1](cotangent)[0]
-
-    return jax.jit(jax.vmap(pullback, in_axes=(0, None, 0)) if batched else pullback)
+    generator's vertices ``program(z, constants)``."""
+    return jax.jit(lambda z, constants, cotangent: jax.vjp(lambda z: program(z, constants), z)[1](cotangent)[0])

@@ -18,7 +18,7 @@ import numpy as np
 from ipm.errors import UserError
 from ipm.render.edge_classes import front_facing, pyramid_loss  # noqa: F401  (pyramid_loss re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
-    _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _pullback, _render_fn, _vertices,
+    _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
     _round_up, _silhouette_loss, padded, split, with_headroom,
 )
 from ipm.render.edge_scan import camera_arrays, project, row_ranges, supersampling
@@ -171,11 +171,12 @@ class EdgeRenderer:
         z_in, jitter_in = (zj, jitter) if batched else (zj[0], jitter[0])
 
         program, constants = split(vertex_fn)
-        vertices = _vertices(program, batched)(z_in, constants)
-        loss, dv = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertices[0] if batched else vertices,
-                             lambda f, budget: _silhouette_loss(self.width, self.height, self.ss, budget, batched)(
-                                 vertices, f, targets, self._w2c, self.focal, jitter_in))
-        grad = _pullback(program, batched)(z_in, constants, dv)
+
+        def run(f, budget):
+            fn = _loss_fn(program, self.width, self.height, self.ss, budget, batched)
+            return fn(z_in, constants, f, targets, self._w2c, self.focal, jitter_in)
+
+        loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(zj[0]), run)
         grad = np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(len(zs), -1)
         return np.asarray(loss, np.float64).reshape(len(zs)), grad
 
