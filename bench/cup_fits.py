@@ -1,9 +1,9 @@
 """Benchmark: whole single-view fits (diff path, JAX renderer) with their wall time split into
 steady evaluations and one-off events (a stage's first call: tracing, compiling or loading its
-program), with and without the memetic stage's batched rounds (``MemeticSettings.memetic_batch``).
+program).
 
     .venv/bin/python bench/cup_fits.py [--device cpu|cuda] [--threads 2] [--cases cup_1 cup_2]
-        [--seeds 1 2] [--batch off on] [--out results/bench/cup_fits]
+        [--seeds 1 2] [--out results/bench/cup_fits]
 
 Each fit runs in this process with JAX's persistent compilation cache as configured (on by
 default: run a seed once first to time warm fits, as the workflow's next seed is). Later fits in
@@ -44,8 +44,6 @@ def main() -> None:
     ap.add_argument("--profile", default="default")
     ap.add_argument("--cases", nargs="+", default=["cup_1", "cup_2"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2])
-    ap.add_argument("--batch", nargs="+", default=["off"], choices=["off", "on"],
-                    help="memetic_batch settings, each fit run once per setting")
     ap.add_argument("--input-res", type=int, default=256)
     ap.add_argument("--event-ms", type=float, default=50.0)
     ap.add_argument("--out", default="results/bench/cup_fits")
@@ -73,18 +71,16 @@ def main() -> None:
             generator = json.loads((Path(tmp) / case / "ground_truth.json").read_text())["generator"]
             views = load_views(Path(tmp) / case / "transforms.json").subset([0])
             for seed in args.seeds:
-                for batch in args.batch:
-                    t0 = time.perf_counter()
-                    problem, z, trace, prof = fit(views, generator, args.profile, seed, False, renderer="jax",
-                                                  memetic_batch=batch == "on")
-                    seconds = time.perf_counter() - t0
-                    write_fit(out / f"{case}_s{seed}_batch_{batch}", problem, z, trace, prof, {}, seconds)
-                    row = {"case": case, "seed": seed, "memetic_batch": batch, "device": device, "machine": machine,
-                           "seconds": round(seconds, 2), "evaluations": len(trace),
-                           "final_loss": float(trace["best"].iloc[-1]), **split_time(trace, args.event_ms / 1000)}
-                    print(json.dumps(row), flush=True)
-                    with open(out / "fits.jsonl", "a") as f:
-                        f.write(json.dumps(row) + "\n")
+                t0 = time.perf_counter()
+                problem, z, trace, prof = fit(views, generator, args.profile, seed, False, renderer="jax")
+                seconds = time.perf_counter() - t0
+                write_fit(out / f"{case}_s{seed}", problem, z, trace, prof, {}, seconds)
+                row = {"case": case, "seed": seed, "device": device, "machine": machine,
+                       "seconds": round(seconds, 2), "evaluations": len(trace),
+                       "final_loss": float(trace["best"].iloc[-1]), **split_time(trace, args.event_ms / 1000)}
+                print(json.dumps(row), flush=True)
+                with open(out / "fits.jsonl", "a") as f:
+                    f.write(json.dumps(row) + "\n")
 
 
 if __name__ == "__main__":

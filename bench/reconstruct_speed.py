@@ -5,18 +5,15 @@ ratio is measured on the same machine at the same time.
 
     .venv/bin/python bench/reconstruct_speed.py [--device cpu|cuda] [--threads 2] [--profile default]
         [--renderers jax mitsuba] [--cases cup_1 cup_2 cup_ext] [--resolutions 64 128 256 512]
-        [--populations 1 4 16 64] [--out results/bench/reconstruct_speed.json]
+        [--out results/bench/reconstruct_speed.json]
         [--keep DIR] [--no-eval] [--input-res 256]
 
 Iterations: one loss and gradient of the first case's input view at the refinement level of detail
-(render + backward); for the JAX renderer also a population of individuals in one call
-(``EdgeRenderer.loss_and_grad_batch``) at ``--population-res``; for Mitsuba, and for JAX with a
-class mask (buildings' windows), a population costs its size in single calls. ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine
+(render + backward). ``--no-eval`` skips the 64-view IoU (it needs open3d, which the GPU machine
 lacks); ``--keep DIR`` keeps each case's reference and reconstructions there, for ``ipm evaluate``
 on another machine. Prints a table and writes the numbers as JSON (with the machine's description).
 Targets it checks: a default-profile cup or building within 5 minutes on 2 CPU cores; the JAX
-renderer's cup at most 0.4 x the Mitsuba path's time; a population of 16 in one call (JAX) costing
-no more per individual than single calls on the CPU (at most 16 x one) and at most 4 x one on a GPU.
+renderer's cup at most 0.4 x the Mitsuba path's time.
 """
 from __future__ import annotations
 
@@ -59,8 +56,6 @@ def main() -> None:
     ap.add_argument("--cases", nargs="+", default=["cup_1", "cup_2", "cup_ext"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="one reconstruction per case and seed")
     ap.add_argument("--resolutions", nargs="+", type=int, default=[64, 128, 256, 512])
-    ap.add_argument("--populations", nargs="+", type=int, default=[1, 4, 16, 64])
-    ap.add_argument("--population-res", type=int, default=128, help="resolution of the population timings")
     ap.add_argument("--iterations", type=int, default=20, help="timed iterations per resolution")
     ap.add_argument("--input-res", type=int, default=256,
                     help="width of the synthesized input view (the default DAG's synth res)")
@@ -90,7 +85,7 @@ def main() -> None:
     record = {"machine": machine_info(args.threads), "gpu": gpu_name() if args.device == "cuda" else None,
               "device": args.device, "threads": args.threads, "profile": args.profile, "input_res": args.input_res,
               "compile_cache": args.compile_cache,
-              "iteration_ms": {r: {} for r in args.renderers}, "population_ms": {r: {} for r in args.renderers},
+              "iteration_ms": {r: {} for r in args.renderers},
               "reconstructions": {r: {} for r in args.renderers}}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -111,24 +106,6 @@ def main() -> None:
                 record["iteration_ms"][renderer][res] = ms
                 print(f"{renderer:8s} iteration at {res:4d} px (render + backward, {gen.name} lod {lod}): "
                       f"{ms:8.1f} ms", flush=True)
-            objective = Objective(problem, views, args.population_res, lod, prof)
-            fn, faces, _ = objective._groups(problem.key(z))  # noqa: SLF001 - the objective's own mesh
-            rng = np.random.default_rng(0)
-            for size in args.populations:
-                zs = z + rng.normal(0.0, 0.01, (size, len(z)))
-                if renderer == "jax" and objective.class_targets is None:  # a class mask: one call each
-                    call = lambda: objective.renderer.loss_and_grad_batch(fn, zs, faces, objective.targets,  # noqa: E731
-                                                                          range(size))
-                else:
-                    call = lambda: [objective(zi) for zi in zs]  # noqa: E731
-                ms = _timed(call, max(2, args.iterations // size), warmup=1 if renderer == "mitsuba" else 2)
-                record["population_ms"][renderer][size] = ms
-                print(f"{renderer:8s} population of {size:3d} at {args.population_res} px: {ms:9.1f} ms "
-                      f"({ms / record['population_ms'][renderer][args.populations[0]]:.2f} x "
-                      f"{args.populations[0]})", flush=True)
-        if "jax" in args.renderers and {1, 16} <= set(args.populations):
-            record["population_target"] = population_target(record["population_ms"]["jax"], args.device)
-            print(record["population_target"]["line"], flush=True)
         for case in args.cases:
             for seed in args.seeds:
                 for renderer in args.renderers:
@@ -165,17 +142,6 @@ def main() -> None:
     out.write_text(json.dumps(record, indent=2) + "\n")
     ratio = f"; jax / mitsuba {record['jax_over_mitsuba']:.2f}" if "jax_over_mitsuba" in record else ""
     print(f"written {out}; mean reconstruction " + ", ".join(f"{r} {v:.1f} s" for r, v in summary.items()) + ratio)
-
-
-def population_target(ms: dict, device: str) -> dict:
-    """The batching criterion: on the CPU a population of 16 in one call costs no more per individual
-    than 16 single calls; on a GPU it costs at most 4 single calls."""
-    limit = 16.0 if device == "cpu" else 4.0
-    ratio = ms[16] / ms[1]
-    met = ratio <= limit
-    return {"ratio_16_to_1": ratio, "limit": limit, "met": met,
-            "line": f"population of 16 on {device}: {ratio:.2f} x one (target at most {limit:g} x): "
-                    f"{'met' if met else 'NOT met'}"}
 
 
 if __name__ == "__main__":

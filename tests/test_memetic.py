@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ipm.optim.adam import adam_init, adam_update
-from ipm.optim.memetic import (Batch, Individual, adam_steps, log_quality, memetic, merge_bins, move_discrete,
+from ipm.optim.memetic import (Individual, adam_steps, log_quality, memetic, merge_bins, move_discrete,
                                share_budget)
 from ipm.profiles import PROFILES, get_profile
 from ipm.errors import UserError
@@ -67,52 +67,6 @@ def test_memetic_finds_the_minimum_of_a_mixed_problem(rng):
     assert [i.best_loss for i in final] == sorted(i.best_loss for i in final)
     assert best.key == (1,) and best.best_loss < 1e-3
     np.testing.assert_allclose(best.best_z[1:3], target[1], atol=0.03)
-
-
-def test_batched_rounds_repeat_the_one_at_a_time_run():
-    """With a :class:`Batch` every individual takes the same points, losses and seeds as one at a
-    time (a seed-dependent, noisy loss shows it), in fewer calls; the trace holds the same rows."""
-    key_of = lambda z: (int(round(z[0])),)  # noqa: E731
-    clip = lambda z: np.concatenate([np.clip(z[:3], 0, 1), [np.mod(z[3], 2 * np.pi)]])  # noqa: E731
-
-    def loss_at(z, seed):  # a bowl per topology plus noise drawn from the render seed
-        d = z[1:3] - (0.3 if key_of(z)[0] else 0.6)
-        noise = np.random.default_rng(seed).normal(0.0, 0.01, 4)
-        return float(d @ d + abs(noise[0])), np.concatenate([[0.0], 2 * d, [0.0]]) + noise
-
-    def run(batched: bool):
-        rng, seen, calls = np.random.default_rng(3), [], [0]
-        count = {"seed": 0}
-
-        def evaluate(z):
-            calls[0] += 1
-            count["seed"] += 1
-            return loss_at(z, count["seed"] - 1)
-
-        def seeds(n):
-            count["seed"] += n
-            return np.arange(count["seed"] - n, count["seed"])
-
-        def many(zs, s):
-            calls[0] += 1
-            out = [loss_at(z, int(k)) for z, k in zip(zs, s)]
-            return np.array([o[0] for o in out]), np.stack([o[1] for o in out])
-
-        prof = get_profile("default", population=6, ga_iterations=4, adam_per_iteration=30).memetic
-        init = [Individual(clip(np.concatenate([[k % 2], rng.random(2), [rng.random() * 6]])), (k % 2,), "r",
-                           lr=0.05) for k in range(6)]
-        final = memetic(init, evaluate, clip, key_of, 3, np.array([2, 0, 0]), prof, rng,
-                        on_eval=lambda ind: seen.append((ind.origin, ind.loss)),
-                        batch=Batch(seeds, many) if batched else None)
-        return final, sorted(seen), calls[0], count["seed"]
-
-    (one, rows1, calls1, seeds1), (many_, rows2, calls2, seeds2) = run(False), run(True)
-    assert [i.best_loss for i in one] == [i.best_loss for i in many_]
-    for a, b in zip(one, many_):
-        np.testing.assert_array_equal(a.best_z, b.best_z)
-        assert (a.lr, a.stall, a.key) == (b.lr, b.stall, b.key)
-    assert rows1 == rows2 and seeds1 == seeds2 == len(rows1)
-    assert calls2 < calls1
 
 
 def test_profiles():

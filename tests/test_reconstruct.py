@@ -177,34 +177,6 @@ def test_match_area_recovers_the_scale(mitsuba_cpu):
     assert abs(fixed[-1] - z[-1]) < 0.25 * np.log(1.6)
 
 
-@pytest.mark.slow
-def test_batched_objective_matches_single_calls(mitsuba_cpu):
-    """``Objective.many``: points of two topologies (with and without a handle), padded to a batch
-    of 4, give the losses and gradients of one-at-a-time calls with the same seeds, and those calls
-    leave the seeds later calls draw as they were; ``batch`` is on only where asked, and only for
-    the JAX renderer's silhouettes."""
-    from ipm.search.objective import Objective
-    from ipm.profiles import get_profile
-
-    gen, problem, z, views = _one_view("mug", 48)
-    objective = Objective(problem, views, 48, 0, get_profile("smoke", renderer="jax").objective)
-    no_handle = z.copy()
-    no_handle[gen.spec.index["has_handle"]] = 0.0
-    zs = [problem.clip(z + 0.03), no_handle, problem.clip(z - 0.02)]
-    losses, grads = objective.many(zs, [7, 8, 9])
-    for x, seed, loss, grad in zip(zs, [7, 8, 9], losses, grads):
-        one_loss, one_grad = objective(x, seed=seed)
-        assert loss == pytest.approx(one_loss, rel=1e-5)
-        np.testing.assert_allclose(grad, one_grad, rtol=1e-4, atol=1e-6 * np.abs(one_grad).max())
-    assert losses[0] != losses[2] and objective.calls == 0  # a call at a given seed draws none
-    np.testing.assert_array_equal(objective.seeds(2), [0, 1])
-    objective(zs[0])
-    assert objective.calls == 3
-    assert objective.batch(True) is not None and objective.batch(False) is None
-    mitsuba = Objective(problem, views, 48, 0, get_profile("smoke", renderer="mitsuba").objective)
-    assert mitsuba.batch(True) is None
-
-
 def test_finalists_are_distinct_basins():
     """``refine_candidates``: the best individuals that differ from every one taken before in
     their topology or by more than a quarter turn; near twins are passed over."""

@@ -114,16 +114,16 @@ def test_gradient_matches_mitsuba(mitsuba_cpu):
 
 
 @pytest.mark.slow
-def test_batch_equals_single_calls_and_budget_grows():
-    """A population in one call gives each individual's loss and gradient as single calls do; a
-    span budget far too small is grown until the image is complete."""
+def test_a_span_budget_far_too_small_is_grown():
+    """A renderer starting from a span budget far too small grows it until the image is complete:
+    its losses and gradients are those of a renderer whose first budget sufficed."""
     gen, problem, z0, fn, topo = _mug()
     cams = _cams()[:1]
     targets = EdgeRenderer(cams, FOV, 48, 48).render(np.asarray(fn(z0)).reshape(-1, 3), topo.faces)
     zs = z0 + np.random.default_rng(0).normal(0, 0.02, (3, len(z0)))
     r = EdgeRenderer(cams, FOV, 48, 48)
-    losses, grads = r.loss_and_grad_batch(fn, zs, topo.faces, targets, seeds=[5, 6, 7])
-    for z, s, loss, grad in zip(zs, (5, 6, 7), losses, grads):
+    for z, s in zip(zs, (5, 6, 7)):
+        loss, grad = r.loss_and_grad(fn, z, topo.faces, topo.n_vertices, targets, seed=s)
         small = EdgeRenderer(cams, FOV, 48, 48, spans=64)
         single = small.loss_and_grad(fn, z, topo.faces, topo.n_vertices, targets, seed=s)
         assert single[0] == pytest.approx(loss, rel=1e-4)
@@ -150,14 +150,12 @@ def test_target_masks_kept_on_the_device_follow_the_array_passed():
 
 
 def test_refusals():
-    """More than two class masks, and a class mask in a batched call, are refused with one line."""
+    """More than two class masks are refused with one line."""
     gen, problem, z0, fn, topo = _mug()
     r = EdgeRenderer(_cams()[:1], FOV, 32, 32)
     with pytest.raises(UserError, match="at most 2 class masks"):
         r.loss_and_grad(fn, z0, [topo.faces, topo.faces[:2], topo.faces[2:4], topo.faces[4:6]], topo.n_vertices,
                         np.zeros((1, 32, 32)))
-    with pytest.raises(UserError, match="batched calls draw silhouettes only"):
-        r.loss_and_grad_batch(fn, z0[None], [topo.faces, topo.faces[:2]], np.zeros((1, 32, 32)), seeds=[0])
 
 
 def _house(classes=("window",)):
@@ -249,7 +247,10 @@ def test_back_faces_culled_on_closed_solids_change_nothing_but_the_work():
     (la, ga), (lb, gb) = plain.loss_and_grad(*args, **kw), culled.loss_and_grad(*args, **kw)
     assert lb == pytest.approx(la, rel=1e-6) and np.abs(ga).max() > 0
     np.testing.assert_allclose(gb, ga, rtol=1e-4, atol=1e-6 * np.abs(ga).max())
-    assert all(np.all(np.less(b, a)) for a, b in zip(plain._budgets.values(), culled._budgets.values()))
+    from ipm.render.edge_programs import _face_classes
+
+    faces, classes = _face_classes(groups)
+    assert np.all(np.less(culled.needed(v, faces, classes), plain.needed(v, faces, classes)))
 
 
 @pytest.mark.slow
@@ -317,7 +318,7 @@ def fresh_programs():
 
 @pytest.mark.slow
 def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_path, fresh_programs):
-    """With a program folder the renderer's programs (silhouette loss, single and batched, render,
+    """With a program folder the renderer's programs (silhouette loss, render,
     class-mask loss) are exported there and give the numbers of programs traced afresh; a later
     process loads them without tracing (export made to fail); a file that does not read back is
     exported again."""
@@ -329,7 +330,7 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
     _, hz, hfn, htopo, groups, hcams = _house()
     cams = _cams()[:1]
     targets = EdgeRenderer(cams, FOV, 32, 32).render(np.asarray(fn(z0)).reshape(-1, 3), topo.faces)
-    zs = z0 + np.random.default_rng(0).normal(0, 0.02, (2, len(z0)))
+    z = z0 + np.random.default_rng(0).normal(0, 0.02, len(z0))
     v = np.asarray(hfn(hz)).reshape(-1, 3)
     faces, classes = edges._face_classes(groups)
     h = EdgeRenderer(hcams[:1], FOV, 32, 32)
@@ -338,10 +339,10 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
 
     def numbers(every: bool = True):
         r = EdgeRenderer(cams, FOV, 32, 32)
-        out = list(r.loss_and_grad(fn, zs[0], topo.faces, topo.n_vertices, targets, seed=3))
+        out = list(r.loss_and_grad(fn, z, topo.faces, topo.n_vertices, targets, seed=3))
         if every:  # the class loss without the building's pullback (half a minute to compile)
             class_loss = edges._class_loss_fn(32, 32, h.ss, budgets, ((0.5,), 1, "mse"))
-            out += [*r.loss_and_grad_batch(fn, zs, topo.faces, targets, seeds=[3, 4]), *h.render(v, groups)[0],
+            out += [*h.render(v, groups)[0],
                     *class_loss(v.reshape(-1), faces, classes, blank, blank[:, None], h._w2c, h.focal,
                                 h._jitter(1))[:2]]
         return out
@@ -352,7 +353,7 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
     fresh_programs()
     for a, b in zip(traced, numbers()):
         np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
-    assert len(list(folder.glob("*.jaxexport"))) == 4  # silhouette loss, batched loss, class loss, class render
+    assert len(list(folder.glob("*.jaxexport"))) == 3  # silhouette loss, class loss, class render
 
     def no_export(*args, **kwargs):
         raise AssertionError("traced again")
@@ -366,7 +367,7 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
         fresh_programs()
         for a, b in zip(traced, numbers(every=False)):
             np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
-    assert len(list(folder.glob("*.jaxexport"))) == 4
+    assert len(list(folder.glob("*.jaxexport"))) == 3
 
 
 def test_program_folder_keeps_the_most_recently_used(tmp_path):

@@ -72,6 +72,9 @@ def test_diff_on_a_tree_case_is_refused(tmp_path):
     assert rc != 0 and "case tree_1: method 'diff' needs a differentiable generator" in out
     rc, out = dry_run(tmp_path, "cases: [cup_1]\nmethods: [{name: ga, views: 1, cases: [tree_9]}]\n")
     assert rc != 0 and "tree_9" in out  # an unknown case in a row's list is refused
+    rc, out = dry_run(tmp_path, "cases: [cup_1, tree_1]\nmethods: [{name: ga, views: 1, cases: [tree_1], "
+                                "seeds: {cup_1: [0, 1]}}]\n")
+    assert rc != 0 and "seeds for cup_1, a case it does not run on" in out
 
 
 @pytest.mark.slow
@@ -95,9 +98,10 @@ def test_config_cases_narrow_every_row(tmp_path):
 def test_other_seeds_of_a_compiling_method_wait_for_the_first(tmp_path):
     """The diff path's second seed of a case runs after its first (it reads the programs the first
     compiled) and the GA's beside it (nothing to share); a rerun of the first seed alone is not a
-    reason to rerun the second (``ancient``)."""
-    rc, out = dry_run(tmp_path, "profile: smoke\nprepare_seed: 0\ncases: [cup_1, tree_1]\nseeds: [0, 1]\n"
-                                "methods: [{name: diff, views: 1, cases: [cup_1]}, {name: ga, views: 1, cases: [tree_1]}]\n")
+    reason to rerun the second (``ancient``). A row's seeds may be given per case."""
+    rc, out = dry_run(tmp_path, "profile: smoke\nprepare_seed: 0\ncases: [cup_1, tree_1]\nseeds: [0]\n"
+                                "methods: [{name: diff, views: 1, cases: [cup_1], seeds: {cup_1: [0, 1]}}, "
+                                "{name: ga, views: 1, cases: [tree_1], seeds: [0, 1]}]\n")
     assert rc == 0, out[-3000:]
     jobs = {}  # each reconstruction's output -> its inputs
     for block in out.split("rule reconstruct:\n")[1:]:
@@ -253,17 +257,17 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
                                    "COLMAP known poses (16 views)", "visual hull (2 views)",
                                    "convex hull (reference)", "true parameters, other seed (reference)"}
     assert list(table["kind"].drop_duplicates()) == ["baseline", "method", "reference"]
-    # diff: 2 cases x 2 seeds, on a degraded mask 1; the learned row, GA, COLMAP, diffSDF, the visual
+    # diff: the cup's 2 seeds and the building's 1, on a degraded mask 1; the learned row, GA, COLMAP, diffSDF, the visual
     # hull: their cases; the reseeded truth: the one stochastic in-family case (tree_1); the convex
     # hull: every case, once
-    assert len(table) == 4 + 1 + 1 + 2 + 1 + 2 + 1 + 1 + len(cases)
+    assert len(table) == 3 + 1 + 1 + 2 + 1 + 2 + 1 + 1 + len(cases)
     assert table.loc[table["label"] == masked, "mask"].tolist() == ["edge +4 px"]
     degraded = json.loads((store / "results/synth/cup_1/hemi1_maskedgep4px/degradation.json").read_text())
     assert degraded["degradation"] == "edge +4 px" and 0.5 < degraded["mask_iou"][0] < 1.0
     assert set(table.loc[table["label"] == "diffSDF-style (2 views)", "case"]) == {"cup_1", "building_1"}
     assert set(table.loc[table["label"] == "true parameters, other seed (reference)", "case"]) == {"tree_1"}
     diff = table[table["label"] == "ours (diff, 1 view)"]
-    assert set(diff["case"]) == {"cup_1", "building_1"} and sorted(diff["seed"]) == [0, 0, 1, 1]
+    assert sorted(zip(diff["case"], diff["seed"])) == [("building_1", 0), ("cup_1", 0), ("cup_1", 1)]
     assert set(table.loc[table["case"] == "cup_goblet", "split"]) == {"test"}
     assert set(table.loc[table["case"] == "cup_1", "split"]) == {"dev"}
     assert set(table.loc[table["case"] == "cup_goblet", "family"]) == {"out"}

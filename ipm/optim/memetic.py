@@ -16,8 +16,7 @@ the ``paper`` profile, ``ipm.profiles``):
    gene moved with probability ``mutate_share / 5`` (:func:`move_discrete`: a two-valued gene
    flips, a many-valued one steps to a neighbouring value or draws another), the yaw jumping to
    a random bin with probability ``mutate_share``.
-``evaluate(z) -> (loss, grad)`` (and, for batched calls, a :class:`Batch`) is the only link to
-rendering, so the algorithm is testable alone.
+``evaluate(z) -> (loss, grad)`` is the only link to rendering, so the algorithm is testable alone.
 """
 from __future__ import annotations
 
@@ -58,9 +57,6 @@ class MemeticSettings(Settings):
     """Render width of the memetic stage (pixels)."""
     memetic_lod: Annotated[int, at_least(0)] = 0
     """Generator level of detail in the memetic stage."""
-    memetic_batch: bool = False
-    """Evaluate the memetic population's steps a round at a time, one batched JAX call per topology
-    (:func:`adam_steps_together`; silhouettes only); off (docs/decisions.md, 'Memetic batching')."""
 
 
 @dataclass
@@ -110,34 +106,6 @@ def adam_steps(ind: Individual, n: int, evaluate: Callable, clip: Callable, reje
         loss, grad = evaluate(z)
         _accept(ind, z, state, loss, grad, reject_ratio)
         on_eval(ind)
-
-
-@dataclass
-class Batch:
-    """Evaluations of several points in one call. ``seeds(n)``: the render seeds of the next ``n``
-    evaluations, those one-at-a-time calls would draw (so a batched run repeats a sequential one);
-    ``evaluate(zs, seeds)``: the losses (b,) and gradients (b, m) of the points ``zs``."""
-
-    seeds: Callable[[int], np.ndarray]
-    evaluate: Callable[[list, np.ndarray], tuple[np.ndarray, np.ndarray]]
-
-
-def adam_steps_together(inds: list[Individual], ns, batch: Batch, clip: Callable, reject_ratio: float,
-                        on_eval: Callable) -> None:
-    """:func:`adam_steps` with ``ns[i]`` steps for each ``inds[i]``, a round at a time: round ``r``
-    evaluates the ``r``-th point of every individual with more than ``r`` steps in one call. Each
-    evaluation gets the seed it would get if the individuals ran one after another in this order,
-    so every individual ends where :func:`adam_steps` would leave it; only the trace's order differs."""
-    ns = np.array([max(int(n), 1 if ind.grad is None else 0) for ind, n in zip(inds, ns)], int)
-    seeds = np.asarray(batch.seeds(int(ns.sum())))
-    first = np.concatenate([[0], np.cumsum(ns)[:-1]])
-    for r in range(int(ns.max(initial=0))):
-        active = np.nonzero(ns > r)[0]
-        proposals = [_propose(inds[i], clip) for i in active]
-        losses, grads = batch.evaluate([z for z, _ in proposals], seeds[first[active] + r])
-        for i, (z, state), loss, grad in zip(active, proposals, losses, grads):
-            _accept(inds[i], z, state, float(loss), grad, reject_ratio)
-            on_eval(inds[i])
 
 
 def _propose(ind: Individual, clip: Callable):
@@ -221,20 +189,15 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
             n_shape: int, levels: np.ndarray, profile: MemeticSettings, rng: np.random.Generator,
             on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z,
-            yaw_free: Callable = lambda z: False,
-            batch: Batch | None = None) -> list[Individual]:
+            yaw_free: Callable = lambda z: False) -> list[Individual]:
     """Run the memetic stage from ``initial``; the last generation, best first (one individual
     per topology key and yaw bin): the first one's ``best_z`` is the answer.
 
     ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
     rescales it to the targets' silhouette area, as it does for the initial population);
-    ``yaw_free(z)``: the object ``z`` looks the same turned (:func:`merge_bins`); ``batch``: evaluate the population's steps a
-    round at a time in batched calls (:func:`adam_steps_together`; the same result as without).
+    ``yaw_free(z)``: the object ``z`` looks the same turned (:func:`merge_bins`).
     """
     def steps(inds: list[Individual], ns) -> None:
-        if batch is not None:
-            adam_steps_together(inds, ns, batch, clip, profile.reject_ratio, on_eval)
-            return
         for ind, n in zip(inds, ns):
             adam_steps(ind, n, evaluate, clip, profile.reject_ratio, on_eval)
 

@@ -33,10 +33,21 @@ def with_headroom(spans: int, grown: bool) -> int:
     return int(spans * 1.25) if grown else int(spans) * 4 // 3
 
 
-def _round_up(n: int) -> int:
-    """``n`` rounded up to one of 8 sizes per octave (at most 12.5 % more work than asked for)."""
-    step = max(1 << max(int(n).bit_length() - 4, 0), 1)
-    return -(-int(n) // step) * step
+SMALL_IMAGE = 64
+"""Images at most this many pixels wide and high take their budgets in powers of two (:func:`_round_up`)."""
+
+
+def _round_up(n: int, small_image: bool = False) -> int:
+    """``n`` rounded up to one of 8 sizes per octave (at most 12.5 % more work than asked for), or
+    for a small image (:data:`SMALL_IMAGE`) to a power of two: each budget is a program to compile
+    (2-4 s on a CPU) while a small image's loss costs a few milliseconds at any budget, so its
+    programs are shared across meshes, seeds and processes. (At 96 px and above a loss's time
+    grows with its budget: a building's fit at powers of two took 1.06 x as long, warm.)"""
+    n = int(n)
+    if small_image:
+        return 1 << max(n - 1, 0).bit_length()
+    step = max(1 << max(n.bit_length() - 4, 0), 1)
+    return -(-n // step) * step
 
 
 def _faces_key(faces: np.ndarray) -> tuple:
@@ -102,18 +113,16 @@ def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int],
 
 
 @lru_cache(maxsize=64)
-def _loss_fn(program: Callable, width: int, height: int, ss: int, budget: int, batched: bool = False):
+def _loss_fn(program: Callable, width: int, height: int, ss: int, budget: int):
     """jit(z, constants, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed
     per view): the generator's vertices ``program(z, constants)`` (:func:`split`) and pullback around
     :func:`_silhouette_loss` in one program. The faces and the problem's constants are arguments,
     not constants (XLA would fold them into the program at every compilation, and a new case or
-    camera would compile anew). ``batched``: over a leading axis of ``z`` and ``jitter``
-    (individuals of one topology)."""
-    render = _silhouette_loss(width, height, ss, budget, batched)
-    vertices_of = jax.vmap(program, in_axes=(0, None)) if batched else program
+    camera would compile anew)."""
+    render = _silhouette_loss(width, height, ss, budget)
 
     def fn(z, constants, faces, targets, w2c, focal, jitter):
-        vertices, pullback = jax.vjp(lambda z: vertices_of(z, constants), z)
+        vertices, pullback = jax.vjp(lambda z: program(z, constants), z)
         loss, grad, needed = render.inline(vertices, faces, targets, w2c, focal, jitter)
         return loss, pullback(grad)[0], needed
 
@@ -138,9 +147,9 @@ def _ignoring_constants(vertex_fn: Callable) -> Callable:
 
 
 @lru_cache(maxsize=64)
-def _silhouette_loss(width: int, height: int, ss: int, budget: int, batched: bool) -> StoredProgram:
+def _silhouette_loss(width: int, height: int, ss: int, budget: int) -> StoredProgram:
     """(flattened vertices, faces, targets, w2c, focal, jitter) -> (loss, d loss / d vertices,
-    spans needed per view), over a leading axis of vertices and jitter when ``batched``."""
+    spans needed per view)."""
 
     def surrogate(vertices, faces, targets, w2c, focal, jitter):
         vertices = vertices.reshape(-1, 3)
@@ -159,14 +168,7 @@ def _silhouette_loss(width: int, height: int, ss: int, budget: int, batched: boo
                                                                                  focal, jitter)
         return loss, grad, needed
 
-    if batched and jax.default_backend() == "cpu":  # one after another in one program: XLA's CPU
-        single = fn  # scatters with a batch dimension cost more than the individuals one by one
-
-        def fn(vertices, faces, targets, w2c, focal, jitter):
-            return jax.lax.map(lambda a: single(a[0], faces, targets, w2c, focal, a[1]), (vertices, jitter))
-    elif batched:
-        fn = jax.vmap(fn, in_axes=(0, None, None, None, None, 0))
-    return _stored(fn, "silhouette_loss", width, height, ss, budget, batched)
+    return _stored(fn, "silhouette_loss", width, height, ss, budget)
 
 
 @lru_cache(maxsize=64)

@@ -15,11 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ipm.errors import UserError
 from ipm.render.edge_classes import front_facing, pyramid_loss  # noqa: F401  (pyramid_loss re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
     _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
-    _round_up, _silhouette_loss, padded, split, with_headroom,
+    SMALL_IMAGE, _round_up, _silhouette_loss, padded, split, with_headroom,
 )
 from ipm.render.edge_scan import camera_arrays, project, row_ranges, supersampling
 from ipm.render.silhouette import group_count as _group_count, highlight_arrays
@@ -52,35 +51,43 @@ class EdgeRenderer:
         self.w2c, self.focal = camera_arrays(self.c2w, fov_x, self.width)
         self._w2c = jnp.asarray(self.w2c)
         self.spans, self.cull = spans, bool(cull_back)
+        self._small = max(self.width, self.height) <= SMALL_IMAGE  # budgets in powers of two (_round_up)
         self._budgets: dict = {}
         self._faces: dict = {}
         self._blocks: dict = {}
         self._classes: dict = {}  # class key -> each face's class on the device
         self._device: dict = {}  # id -> (a caller's array, its device copy): :meth:`_on_device`
 
+    def needed(self, vertices: np.ndarray, faces: np.ndarray, classes: np.ndarray | None = None) -> tuple[int, int]:
+        """The spans and (with ``classes``) fragments the mesh (``vertices`` (V, 3), ``faces``
+        (F, 3)) needs in its costliest view and scan direction: the work its image takes."""
+        v = np.asarray(vertices, np.float32).reshape(-1, 3)
+        need, frags = 0, 0
+        for m in self.w2c:
+            xy, front = project(v, m, self.focal, self.width, self.height, np)
+            tri = (xy * self.ss)[faces]
+            e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+            area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+            drawn = (front_facing(e1, e2) if self.cull else area > 0) if classes is not None else True
+            ok = front[faces].all(1) & drawn  # view_class_area's
+            for axis, size in ((1, self.height), (0, self.width)):
+                rows = row_ranges(tri[..., axis], ok, size * self.ss, np)[1]
+                need = max(need, int(rows.sum()))
+                frags = max(frags, int(area[ok].sum() + rows.sum()))
+        return need, frags
+
     def _budget(self, key, vertices, faces: np.ndarray, classes: np.ndarray | None = None) -> int | tuple[int, int]:
         """The span budget for meshes of ``key`` (with ``classes``, the span and fragment budgets):
-        on first sight ``spans``, or what ``vertices`` (a callable giving them) need in any view and
-        direction with :func:`with_headroom`, so that the search rarely outgrows it."""
+        on first sight ``spans``, or what ``vertices`` (a callable giving them) need (:meth:`needed`)
+        with :func:`with_headroom`, so that the search rarely outgrows it."""
         if key not in self._budgets:
             if self.spans:
                 self._budgets[key] = int(self.spans) if classes is None else (int(self.spans), int(self.spans))
                 return self._budgets[key]
-            v = np.asarray(vertices(), np.float32).reshape(-1, 3)
-            need, frags = 0, 0
-            for m in self.w2c:
-                xy, front = project(v, m, self.focal, self.width, self.height, np)
-                tri = (xy * self.ss)[faces]
-                e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-                area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-                drawn = (front_facing(e1, e2) if self.cull else area > 0) if classes is not None else True
-                ok = front[faces].all(1) & drawn  # view_class_area's
-                for axis, size in ((1, self.height), (0, self.width)):
-                    rows = row_ranges(tri[..., axis], ok, size * self.ss, np)[1]
-                    need = max(need, int(rows.sum()))
-                    frags = max(frags, int(area[ok].sum() + rows.sum()))
-            spans = _round_up(with_headroom(need, grown=False) + 256)
-            self._budgets[key] = spans if classes is None else (spans, _round_up(with_headroom(frags, grown=False) + 256))
+            need, frags = self.needed(vertices(), faces, classes)
+            spans = _round_up(with_headroom(need, grown=False) + 256, self._small)
+            self._budgets[key] = spans if classes is None else (
+                spans, _round_up(with_headroom(frags, grown=False) + 256, self._small))
         return self._budgets[key]
 
     def _run(self, key, groups: np.ndarray, vertices, run, classes: np.ndarray | None = None, budget_key=None):
@@ -96,7 +103,8 @@ class EdgeRenderer:
             need = np.asarray(needed).reshape(-1, len(have)).max(0)
             if (need <= have).all():
                 return out
-            grown = tuple(_round_up(with_headroom(int(n), grown=True) + 1) if n > b else int(b) for n, b in zip(need, have))
+            grown = tuple(_round_up(with_headroom(int(n), grown=True) + 1, self._small) if n > b else int(b)
+                          for n, b in zip(need, have))
             budget = self._budgets[key_b] = grown if classes is not None else grown[0]
 
     def _jitter(self, seed: int) -> np.ndarray:
@@ -145,40 +153,26 @@ class EdgeRenderer:
                 raise ValueError(f"unknown class-mask loss {highlight_loss!r} (known: mse, dice)")
             class_targets, weights = highlight_arrays(targets, n_groups - 1, highlight_targets, highlight_weight)
             highlight = (class_targets, weights, int(highlight_levels), highlight_loss)
-        loss, grad = self._call(vertex_fn, np.asarray(z)[None], faces, targets, [seed], batched=False,
-                                n_vertices=n_vertices, highlight=highlight)
-        return float(loss[0]), grad[0]
+        return self._call(vertex_fn, z, faces, targets, seed, n_vertices=n_vertices, highlight=highlight)
 
-    def loss_and_grad_batch(self, vertex_fn: Callable, zs: np.ndarray, faces, targets: np.ndarray,
-                            seeds) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`loss_and_grad` of several points ``zs`` (b, m) of one topology in one call, each
-        with its render seed: losses (b,) and gradients (b, m) (silhouettes)."""
-        return self._call(vertex_fn, np.asarray(zs), faces, targets, list(seeds), batched=True)
-
-    def _call(self, vertex_fn, zs, faces, targets, seeds, batched: bool, n_vertices: int | None = None,
-              highlight: tuple | None = None):
-        """Losses (b,) and gradients (b, m) of ``zs`` (b, m), one compiled call (batched) or one per
-        point; ``highlight``: (class targets (n, K, H, W), weights (K,), levels, loss) of the K
-        further face groups."""
-        zj = np.asarray(zs, np.float32)  # numpy into the compiled calls: one transfer each, no eager ops
+    def _call(self, vertex_fn, z, faces, targets, seed: int, n_vertices: int | None = None,
+              highlight: tuple | None = None) -> tuple[float, np.ndarray]:
+        """Loss and gradient (m,) at ``z`` (m,); ``highlight``: (class targets (n, K, H, W), weights
+        (K,), levels, loss) of the K further face groups."""
+        z = np.asarray(z, np.float32)  # numpy into the compiled calls: one transfer each, no eager ops
         targets = self._on_device(targets)
-        jitter = np.stack([self._jitter(s) for s in seeds])
+        jitter = self._jitter(seed)
         if highlight is not None:
-            return self._class_call(vertex_fn, zj, faces, targets, jitter, n_vertices, highlight)
-        if _group_count(faces) > 1:
-            raise UserError("the jax renderer's batched calls draw silhouettes only")
+            return self._class_call(vertex_fn, z, faces, targets, jitter, n_vertices, highlight)
         groups = _face_classes(faces)[0]
-        z_in, jitter_in = (zj, jitter) if batched else (zj[0], jitter[0])
-
         program, constants = split(vertex_fn)
 
         def run(f, budget):
-            fn = _loss_fn(program, self.width, self.height, self.ss, budget, batched)
-            return fn(z_in, constants, f, targets, self._w2c, self.focal, jitter_in)
+            return _loss_fn(program, self.width, self.height, self.ss, budget)(z, constants, f, targets, self._w2c,
+                                                                               self.focal, jitter)
 
-        loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(zj[0]), run)
-        grad = np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(len(zs), -1)
-        return np.asarray(loss, np.float64).reshape(len(zs)), grad
+        loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(z), run)
+        return float(loss), np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(-1)
 
     def _on_device(self, array) -> jnp.ndarray:
         """``array`` (float32) on the device, copied once per array object a caller passes again
@@ -189,25 +183,22 @@ class EdgeRenderer:
             self._device[id(array)] = (array, jnp.asarray(np.asarray(array, np.float32)))  # holds it: ids stay
         return self._device[id(array)][1]
 
-    def _class_call(self, vertex_fn, zj, faces, targets, jitter, n_vertices: int, highlight: tuple):
-        """:meth:`_call` with a class-mask term, one point after another: the generator's vertices,
-        the render program's loss and d loss / d vertices, then the generator's pullback."""
+    def _class_call(self, vertex_fn, z, faces, targets, jitter, n_vertices: int, highlight: tuple):
+        """:meth:`_call` with a class-mask term: the generator's vertices, the render program's loss
+        and d loss / d vertices, then the generator's pullback."""
         if (vertex_fn, n_vertices) not in self._blocks:
-            size = int(np.prod(jax.eval_shape(vertex_fn, zj[0]).shape))
+            size = int(np.prod(jax.eval_shape(vertex_fn, z).shape))
             self._blocks[vertex_fn, n_vertices] = size // (3 * int(n_vertices))
         groups, classes = padded(*_face_classes(faces, n_vertices, self._blocks[vertex_fn, n_vertices]))
         key = ("class", *_faces_key(groups), *_class_sizes(classes))
         if key not in self._classes:
             self._classes[key] = jnp.asarray(classes)
         cls, class_targets = self._classes[key], self._on_device(highlight[0])
-        losses, grads = [], []
         program, constants = split(vertex_fn)
-        for z, j in zip(zj, jitter):
-            vertices = vertex_fn(z)
-            loss, dv = self._run(key, groups, lambda: vertices, lambda f, budget: _class_loss_fn(
-                self.width, self.height, self.ss, budget, tuple(highlight[1:]), self.cull)(
-                vertices, f, cls, targets, class_targets, self._w2c, self.focal, j), classes,
-                ("class", len(groups), len(highlight[1])))
-            losses.append(float(loss))
-            grads.append(np.asarray(_pullback(program)(z, constants, dv), np.float64))
-        return np.array(losses), np.nan_to_num(np.stack(grads), nan=0.0, posinf=0.0, neginf=0.0)
+        vertices = vertex_fn(z)
+        loss, dv = self._run(key, groups, lambda: vertices, lambda f, budget: _class_loss_fn(
+            self.width, self.height, self.ss, budget, tuple(highlight[1:]), self.cull)(
+            vertices, f, cls, targets, class_targets, self._w2c, self.focal, jitter), classes,
+            ("class", len(groups), len(highlight[1])))
+        grad = np.asarray(_pullback(program)(z, constants, dv), np.float64)
+        return float(loss), np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)

@@ -139,8 +139,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     def stage(pop: list[Individual], settings) -> list[Individual]:
         track.enter("memetic", objective.width)
         return memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, settings,
-                       rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free,
-                       batch=objective.batch(settings.memetic_batch))
+                       rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free)
 
     final, added = [], set()
     for held in holds:

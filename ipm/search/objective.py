@@ -15,7 +15,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.io.views import Views, resize_masks
-from ipm.optim.memetic import Batch
 from ipm.problem import POSE_NAMES, Problem
 from ipm.render.edges import EdgeRenderer
 from ipm.render.silhouette import SilhouetteRenderer
@@ -144,33 +143,6 @@ class Objective:
         """The next evaluation draws the first render seed again: a move's or a stage's draws do not
         depend on how many evaluations the moves before it made."""
         self.calls = 0
-
-    def batch(self, on: bool) -> Batch | None:
-        """Batched evaluations for the memetic stage (``MemeticSettings.memetic_batch``), or None: off,
-        or a renderer other than JAX's silhouettes (class masks run one at a time)."""
-        if not on or not isinstance(self.renderer, EdgeRenderer) or self.class_targets is not None:
-            return None
-        return Batch(self.seeds, self.many)
-
-    def many(self, zs: list[np.ndarray], seeds) -> tuple[np.ndarray, np.ndarray]:
-        """Losses (b,) and gradients (b, m) of the points ``zs`` rendered with ``seeds``: one JAX
-        call per topology, padded to a power of 4 points (each size is a program to compile)."""
-        losses, grads = np.empty(len(zs)), np.empty((len(zs), len(zs[0])))
-        groups: dict = {}  # vertex function -> (faces, indices)
-        for i, z in enumerate(zs):
-            fn, faces, _ = self._groups(self.problem.key(z))
-            groups.setdefault(fn, (faces, []))[1].append(i)
-        for fn, (faces, idx) in groups.items():
-            size = 4
-            while size < len(idx):
-                size *= 4
-            pad = idx + idx[:1] * (size - len(idx))
-            loss, grad = self.renderer.loss_and_grad_batch(fn, np.stack([zs[i] for i in pad]), faces, self.targets,
-                                                           [int(seeds[i]) for i in pad])
-            for k, i in enumerate(idx):
-                reg, reg_grad = self.problem.regulariser(zs[i], self.reg)
-                losses[i], grads[i] = loss[k] + reg, grad[k] + reg_grad
-        return losses, grads
 
     def _render(self, z: np.ndarray) -> np.ndarray:
         fn, faces, n_vertices = self._groups(self.problem.key(z))

@@ -52,9 +52,12 @@ def case_seeds(case):
 
 
 def method_seeds(m, case):
-    """Seeds a methods entry runs on ``case``: its own ``seeds`` list, else the case's; a method
-    without random choices (``seeded=False``) runs once, with the first of them."""
+    """Seeds a methods entry runs on ``case``: its own ``seeds`` list (or its list for ``case``
+    where ``seeds`` maps cases to lists), else the case's; a method without random choices
+    (``seeded=False``) runs once, with the first of them."""
     seeds = m.get("seeds", case_seeds(case))
+    if isinstance(seeds, dict):
+        seeds = seeds.get(case, case_seeds(case))
     return seeds if METHODS[m["name"]].seeded else seeds[:1]
 
 
@@ -92,6 +95,9 @@ def check_methods():
                 )
         for case in m.get("cases", []):
             load_case(case)  # an unknown name is refused even where cases leaves it out
+        for case in m.get("seeds", {}) if isinstance(m.get("seeds"), dict) else []:
+            if case not in m.get("cases", config["cases"]):
+                raise ValueError(f"config: methods entry {row_id(m)}: seeds for {case}, a case it does not run on")
         for case in method_cases(m):
             if METHODS[m["name"]].uses_generator:
                 try:
