@@ -1,5 +1,7 @@
 """Benchmark: where a command's CPU time goes in JAX's compiler: XLA's backend compiles, tracing
-and lowering, by program and by pytest test, with the persistent cache's hits and misses. Every
+and lowering, by program and by pytest test, with the persistent cache's hits and misses, and the
+programs compiled again for the same argument shapes (what differs is baked in: a span budget, a
+setting). Every
 Python process the command starts (test workers, the CLI, the smoke DAG's jobs) records itself
 (``bench/compile_hook``); the summary adds them up. Run with nothing else on the machine.
 
@@ -47,20 +49,26 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
     totals = Counter(cpu_s=sum(p["cpu_s"] for p in processes))
     programs: dict = defaultdict(Counter)
     tests: Counter = Counter()
+    shapes: dict = defaultdict(Counter)  # (program, argument shapes) -> compiles, seconds
     for p in processes:
-        for kind, test, program, seconds in p["records"]:
+        for kind, test, program, seconds, *rest in p["records"]:
             totals[_TOTAL[kind]] += seconds if _TOTAL[kind].endswith("_s") else 1
             if kind == "compile":
                 programs[program or "?"].update(compiles=1, seconds=seconds)
+                if rest and rest[0] and program:  # unnamed (uncached) programs differ beyond their shapes
+                    shapes[program, rest[0]].update(compiles=1, seconds=seconds)
             elif kind == "hit":
                 programs[program or "?"].update(hits=1)
             if kind in ("compile", "trace", "lower"):
                 tests[test] += seconds
     ranked = sorted(programs.items(), key=lambda kv: -kv[1]["seconds"])[:top]
+    again = sorted(((k, c) for k, c in shapes.items() if c["compiles"] > 1), key=lambda kv: -kv[1]["seconds"])[:top]
     return {"processes": len(processes), "totals": {k: round(v, 1) for k, v in totals.items()},
             "programs": [{"program": name, "compiles": c["compiles"], "seconds": round(c["seconds"], 1),
                           "hits": c["hits"]} for name, c in ranked],
-            "tests": [{"test": t, "seconds": round(s, 1)} for t, s in tests.most_common(top)]}
+            "tests": [{"test": t, "seconds": round(s, 1)} for t, s in tests.most_common(top)],
+            "same_shapes": [{"program": name, "shapes": args, "compiles": c["compiles"], "seconds": round(c["seconds"], 1)}
+                            for (name, args), c in again]}
 
 
 def markdown(summary: dict) -> str:
@@ -72,6 +80,10 @@ def markdown(summary: dict) -> str:
     lines += [f"| {p['program']} | {p['compiles']} | {p['seconds']} | {p['hits']} |" for p in summary["programs"]]
     lines += ["", "| test | compile + trace + lower (s) |", "|---|---|"]
     lines += [f"| {r['test']} | {r['seconds']} |" for r in summary["tests"]]
+    if summary.get("same_shapes"):
+        lines += ["", "| program compiled again for the same argument shapes | compiles | seconds |", "|---|---|---|"]
+        lines += [f"| {r['program']} {r['shapes'][:160]} | {r['compiles']} | {r['seconds']} |"
+                  for r in summary["same_shapes"]]
     return "\n".join(lines)
 
 

@@ -96,17 +96,22 @@ def test_compile_profile_adds_up_processes_by_program_and_test():
     worker = {"cpu_s": 10.0, "records": [["miss", "t::a", "jit_fn", 0.0], ["compile", "t::a", "jit_fn", 3.0],
                                          ["trace", "t::a", None, 0.5], ["hit", "t::b", "jit_fn", 0.0],
                                          ["read", "t::b", None, 0.1], ["lower", "t::b", None, 0.25]]}
-    job = {"cpu_s": 4.0, "records": [["miss", "-", "jit_inline", 0.0], ["compile", "-", "jit_inline", 1.0],
-                                     ["compile", "t::a", "jit_fn", 2.0]]}
+    job = {"cpu_s": 4.0, "records": [["miss", "-", "jit_inline", 0.0], ["compile", "-", "jit_inline", 1.0, "(f32[4])"],
+                                     ["compile", "t::a", "jit_fn", 2.0], ["compile", "-", "jit_inline", 0.5, "(f32[4])"],
+                                     ["compile", "-", "jit_inline", 0.5, "(f32[8])"], ["compile", "-", None, 0.5, "()"],
+                                     ["compile", "-", None, 0.5, "()"]]}
     out = prof.summarize([worker, job], top=5)
     assert out["processes"] == 2
-    assert out["totals"] == {"cpu_s": 14.0, "compile_s": 6.0, "trace_s": 0.5, "lower_s": 0.2, "read_s": 0.1,
+    assert out["totals"] == {"cpu_s": 14.0, "compile_s": 8.0, "trace_s": 0.5, "lower_s": 0.2, "read_s": 0.1,
                              "hits": 1, "misses": 2}
     assert out["programs"] == [{"program": "jit_fn", "compiles": 2, "seconds": 5.0, "hits": 1},
-                               {"program": "jit_inline", "compiles": 1, "seconds": 1.0, "hits": 0}]
-    assert out["tests"] == [{"test": "t::a", "seconds": 5.5}, {"test": "-", "seconds": 1.0},
+                               {"program": "jit_inline", "compiles": 3, "seconds": 2.0, "hits": 0},
+                               {"program": "?", "compiles": 2, "seconds": 1.0, "hits": 0}]
+    # the same shapes compiled twice (a budget baked in); records without shapes or a name are left out
+    assert out["same_shapes"] == [{"program": "jit_inline", "shapes": "(f32[4])", "compiles": 2, "seconds": 1.5}]
+    assert out["tests"] == [{"test": "t::a", "seconds": 5.5}, {"test": "-", "seconds": 3.0},
                             {"test": "t::b", "seconds": 0.2}]
-    assert "| jit_fn | 2 | 5.0 | 1 |" in prof.markdown(out)
+    assert "| jit_fn | 2 | 5.0 | 1 |" in prof.markdown(out) and "| jit_inline (f32[4]) | 2 | 1.5 |" in prof.markdown(out)
 
 
 @pytest.mark.slow
@@ -126,4 +131,5 @@ def test_compile_profile_records_a_process_it_starts(tmp_path, monkeypatch):
     assert rc == 0 and summary["processes"] == 1 and summary["totals"]["cpu_s"] > 0, summary
     assert summary["totals"]["misses"] >= 1 and summary["totals"]["compile_s"] > 0, summary
     assert any(p["program"] == "jit_sine_gram" and p["compiles"] == 1 for p in summary["programs"]), summary
+    assert all(r["program"] != "jit_sine_gram" for r in summary["same_shapes"]), summary  # one compile
     assert summary["tests"][0]["test"].startswith("tests/test_bench.py::test_compile_profile_records"), summary

@@ -1,7 +1,7 @@
 """Loaded by every Python process that ``bench/compile_profile.py`` starts (its folder leads
 ``PYTHONPATH``): where ``IPM_COMPILE_PROFILE`` names a folder, records this process's JAX compiles
-(XLA's backend compile, tracing and lowering; persistent-cache hits and misses, by program name)
-with the pytest test running at the time (``PYTEST_CURRENT_TEST``, inherited by the processes a
+(XLA's backend compile, tracing and lowering; persistent-cache hits and misses, by program name;
+each compile with its programs' argument shapes) with the pytest test running at the time (``PYTEST_CURRENT_TEST``, inherited by the processes a
 test starts), and writes them there as ``<pid>.json`` when the process ends. Elsewhere it does nothing."""
 from __future__ import annotations
 
@@ -24,12 +24,12 @@ def _test() -> str:
 
 if _FOLDER:
     _records: list = []
-    _state = {"listening": False, "program": None}
+    _state = {"listening": False, "program": None, "shapes": None}
 
     def _on_duration(event: str, seconds: float, **_):
         kind = _EVENTS.get(event)
         if kind == "compile":  # the program its cache miss named; "?" where none was logged
-            _records.append((kind, _test(), _state["program"], seconds))
+            _records.append((kind, _test(), _state["program"], seconds, _state["shapes"]))
             _state["program"] = None
         elif kind is not None:
             _records.append((kind, _test(), None, seconds))
@@ -62,10 +62,19 @@ if _FOLDER:
                     pass
             return _state["listening"]
 
-    _log = logging.getLogger("jax._src.compiler")
-    _log.setLevel(logging.DEBUG)
-    _log.addHandler(_CacheLog())
-    _log.propagate = False  # its debug lines would reach stderr (the CLI's one-line errors)
+    class _ShapesLog(logging.Handler):
+        """JAX names each program's argument shapes as it lowers it (before the cache lookup)."""
+
+        def emit(self, record):
+            message = record.getMessage()
+            if message.startswith("Compiling ") and " with global shapes and types " in message:
+                _state["shapes"] = message.split(" with global shapes and types ", 1)[1].split(". Argument", 1)[0]
+
+    for _name, _handler in (("jax._src.compiler", _CacheLog()), ("jax._src.interpreters.pxla", _ShapesLog())):
+        _log = logging.getLogger(_name)
+        _log.setLevel(logging.DEBUG)
+        _log.addHandler(_handler)
+        _log.propagate = False  # its debug lines would reach stderr (the CLI's one-line errors)
 
     @atexit.register
     def _write():
