@@ -1,4 +1,4 @@
-"""Benchmark: silhouette loss-and-gradient time per renderer, resolution and population size, and
+"""Benchmark: silhouette loss-and-gradient time per renderer and resolution, and
 whole single-view reconstructions of the given cases with each renderer (cups by default;
 buildings: ``--cases building_1 ...``) with their 64-view IoU, all in one run so the renderers'
 ratio is measured on the same machine at the same time.
