@@ -154,16 +154,13 @@ def _run(args) -> int:
         synthesize(args.case, args.out, n_views=args.views, res=args.res, spp=args.spp, progress=not args.quiet,
                    layout=args.layout)
     elif args.command == "reconstruct":
-        from ipm.generators import GENERATORS
         from ipm.methods import METHODS, check_generator
         from ipm.runtime import set_mitsuba_variant
 
-        GENERATORS[args.generator]  # fail fast on unknown names, before any rendering
         method = METHODS[args.method]
         if not method.uses_generator:
             hint = f" --generator {args.generator}" if method.learns_generator else ""
             raise UserError(f"{args.method!r} is a baseline: use ipm baseline {args.method}{hint}")
-        check_generator(args.method, args.generator)
         extra = {}
         if args.prepared is not None:
             if method.prepare is None and not (args.method == "diff" or method.withholds_camera):  # learned starts
@@ -188,6 +185,10 @@ def _run(args) -> int:
         for name in ("renderer", "start"):
             if getattr(args, name) is not None:
                 extra[name] = getattr(args, name)
+        from ipm.generators import GENERATORS  # after the flags' checks, which need no generator (JAX) imported
+
+        GENERATORS[args.generator]  # unknown names, before any rendering
+        check_generator(args.method, args.generator)
         views = _views(args)
         set_mitsuba_variant(args.device, args.threads)
         info = method(views, args.out, generator=args.generator, profile=args.profile, seed=args.seed,
@@ -207,13 +208,14 @@ def _run(args) -> int:
             print(f"{args.out}: camera pitch {cam['pitch_deg']:.1f} deg, roll {cam['roll_deg']:.1f} deg, "
                   f"field of view {cam['fov_x_deg']:.1f} deg{chosen}; figure in overview.png")
     elif args.command == "prepare":
-        from ipm.generators import GENERATORS
         from ipm.methods import METHODS, check_generator
 
-        GENERATORS[args.generator]
         method = METHODS[args.method]
         if method.prepare is None:
             raise UserError(f"method {args.method!r} has no preparation stage")
+        from ipm.generators import GENERATORS
+
+        GENERATORS[args.generator]
         check_generator(args.method, args.generator)
         info = method.prepare(args.generator, args.out, profile=args.profile, seed=args.seed,
                               progress=not args.quiet)
