@@ -30,7 +30,7 @@ if _FOLDER:
         kind = _EVENTS.get(event)
         if kind == "compile":  # the program its cache miss named; "?" where none was logged
             _records.append((kind, _test(), _state["program"], seconds, _state["shapes"]))
-            _state["program"] = None
+            _state["program"] = _state["shapes"] = None  # a compile whose lowering logged none gets none
         elif kind is not None:
             _records.append((kind, _test(), None, seconds))
 

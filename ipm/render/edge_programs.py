@@ -37,7 +37,7 @@ SMALL_IMAGE = 64
 """Images at most this many pixels wide and high take their budgets in powers of two (:func:`_round_up`)."""
 
 
-def _round_up(n: int, small_image: bool = False) -> int:
+def _round_up(n: int, small_image: bool) -> int:
     """``n`` rounded up to one of 8 sizes per octave (at most 12.5 % more work than asked for), or
     for a small image (:data:`SMALL_IMAGE`) to a power of two: each budget is a program to compile
     (2-4 s on a CPU) while a small image's loss costs a few milliseconds at any budget, so its

@@ -95,9 +95,10 @@ def check_methods():
                 )
         for case in m.get("cases", []):
             load_case(case)  # an unknown name is refused even where cases leaves it out
-        for case in m.get("seeds", {}) if isinstance(m.get("seeds"), dict) else []:
-            if case not in m.get("cases", config["cases"]):
-                raise ValueError(f"config: methods entry {row_id(m)}: seeds for {case}, a case it does not run on")
+        if isinstance(m.get("seeds"), dict):
+            for case in m["seeds"]:
+                if case not in m.get("cases", config["cases"]):
+                    raise ValueError(f"config: methods entry {row_id(m)}: seeds for {case}, a case it does not run on")
         for case in method_cases(m):
             if METHODS[m["name"]].uses_generator:
                 try:
