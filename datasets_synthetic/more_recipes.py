@@ -1,5 +1,6 @@
-"""More mesh recipes for out-of-family cases: a mug with a round C handle, a footed bowl, a house
-with a lean-to annex and a T-shaped house. Independent code as in :mod:`datasets_synthetic.recipes`
+"""More mesh recipes for out-of-family cases: a mug with a round C handle, a footed bowl, a teacup
+with an ear handle, a tapered stein with a D handle, a house with a lean-to annex and a T-shaped
+house. Independent code as in :mod:`datasets_synthetic.recipes`
 (numpy and trimesh, no generator code), registered in its ``RECIPES``; each part closed, wound
 outwards."""
 from __future__ import annotations
@@ -29,6 +30,57 @@ def c_handle_mug(radius=0.3, height=0.72, wall=0.022, floor=0.035, base_round=0.
     y0, y1 = handle_low * height, handle_high * height
     pts = np.stack([x0 + handle_reach * np.sin(np.pi * s), y0 + (y1 - y0) * 0.5 * (1 - np.cos(np.pi * s)),
                     np.zeros_like(s)], 1)
+    v, f = _closed_tubes([(pts, np.full(len(pts), handle_radius))], sides=20)
+    return _assemble([body, trimesh.Trimesh(v, f, process=False)], [0, 1])
+
+
+@RECIPES.register("ear_teacup")
+def ear_teacup(radius=0.38, height=0.46, base_radius=0.17, foot_height=0.035, wall=0.018, bell=1.6,
+               handle_top=0.85, handle_bottom=0.3, handle_reach=0.2, handle_radius=0.026, sections=96):
+    """A teacup whose side flares from a foot ring as a bell (the radius grows as the height's
+    ``bell`` power), with a small ear handle: a tube swept along a teardrop from near the rim down
+    to the lower body, widest near its top (a revolved body and a swept tube; labels 0 body, 1 handle)."""
+    s = np.linspace(0.0, 1.0, 20)
+    rise = foot_height + (height - foot_height) * s
+    out_r = base_radius + (radius - base_radius) * s ** bell
+    prof = [[0.0, 0.0], [base_radius * 0.9, 0.0], [base_radius * 0.9, foot_height]] + [[r, y] for r, y in zip(out_r, rise)]
+    prof += [[r - wall, y] for r, y in zip(out_r[::-1], rise[::-1]) if y > foot_height + wall] + [[0.0, foot_height + wall]]
+    body = _revolved(prof, sections)
+
+    def radius_at(y):
+        return base_radius + (radius - base_radius) * np.clip((y - foot_height) / (height - foot_height), 0, 1) ** bell
+
+    t = np.linspace(0.0, 1.0, 41)
+    y = height * (handle_top + (handle_bottom - handle_top) * t)
+    bulge = np.sin(np.pi * t) * (1.0 - 0.45 * t)  # a teardrop: widest in its upper half
+    pts = np.stack([radius_at(y) - 0.5 * wall + handle_reach * bulge, y, np.zeros_like(t)], 1)
+    v, f = _closed_tubes([(pts, np.full(len(pts), handle_radius))], sides=16)
+    return _assemble([body, trimesh.Trimesh(v, f, process=False)], [0, 1])
+
+
+@RECIPES.register("d_handle_stein")
+def d_handle_stein(radius_bottom=0.33, radius_top=0.26, height=0.82, wall=0.024, base_band=0.06,
+                   handle_low=0.18, handle_high=0.84, handle_reach=0.2, corner=0.07, handle_radius=0.032,
+                   sections=96):
+    """A stein narrowing to the top over a thicker base band, with a D handle: a tube out from the
+    wall, down a straight grip and back, its two bends rounded with radius ``corner`` (a revolved
+    body and a swept tube; labels 0 body, 1 handle)."""
+    def radius_at(y):
+        return radius_bottom + (radius_top - radius_bottom) * np.clip(y / height, 0, 1)
+
+    prof = [[0.0, 0.0], [radius_bottom + 0.015, 0.0], [radius_bottom + 0.015, base_band], [radius_at(base_band), base_band]]
+    prof += [[radius_top, height], [radius_top - wall, height], [radius_bottom - wall, base_band + wall], [0.0, base_band + wall]]
+    body = _revolved(prof, sections)
+    y0, y1 = handle_low * height, handle_high * height
+    x_out = max(radius_at(y0), radius_at(y1)) + handle_reach
+    arc = np.linspace(0.0, 0.5 * np.pi, 9)
+    top = [[radius_at(y1) - 0.5 * wall + (x_out - corner - radius_at(y1)) * s, y1] for s in np.linspace(0, 1, 6)]
+    top += [[x_out - corner + corner * np.sin(a), y1 - corner + corner * np.cos(a)] for a in arc[1:]]
+    down = [[x_out, y] for y in np.linspace(y1 - corner, y0 + corner, 10)[1:-1]]
+    bottom = [[x_out - corner + corner * np.cos(a), y0 + corner - corner * np.sin(a)] for a in arc[:-1]]
+    bottom += [[x_out - corner - (x_out - corner - radius_at(y0) + 0.5 * wall) * s, y0] for s in np.linspace(0, 1, 6)]
+    path = np.array(top + down + bottom)
+    pts = np.concatenate([path, np.zeros((len(path), 1))], 1)
     v, f = _closed_tubes([(pts, np.full(len(pts), handle_radius))], sides=20)
     return _assemble([body, trimesh.Trimesh(v, f, process=False)], [0, 1])
 
