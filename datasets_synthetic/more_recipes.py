@@ -43,8 +43,10 @@ def ear_teacup(radius=0.38, height=0.46, base_radius=0.17, foot_height=0.035, wa
     s = np.linspace(0.0, 1.0, 20)
     rise = foot_height + (height - foot_height) * s
     out_r = base_radius + (radius - base_radius) * s ** bell
-    prof = [[0.0, 0.0], [base_radius * 0.9, 0.0], [base_radius * 0.9, foot_height]] + [[r, y] for r, y in zip(out_r, rise)]
-    prof += [[r - wall, y] for r, y in zip(out_r[::-1], rise[::-1]) if y > foot_height + wall] + [[0.0, foot_height + wall]]
+    prof = [[0.0, 0.0], [base_radius * 0.9, 0.0], [base_radius * 0.9, foot_height]]
+    prof += [[r, y] for r, y in zip(out_r, rise)]
+    prof += [[r - wall, y] for r, y in zip(out_r[::-1], rise[::-1]) if y > foot_height + wall]
+    prof += [[0.0, foot_height + wall]]
     body = _revolved(prof, sections)
 
     def radius_at(y):
@@ -68,8 +70,9 @@ def d_handle_stein(radius_bottom=0.33, radius_top=0.26, height=0.82, wall=0.024,
     def radius_at(y):
         return radius_bottom + (radius_top - radius_bottom) * np.clip(y / height, 0, 1)
 
-    prof = [[0.0, 0.0], [radius_bottom + 0.015, 0.0], [radius_bottom + 0.015, base_band], [radius_at(base_band), base_band]]
-    prof += [[radius_top, height], [radius_top - wall, height], [radius_bottom - wall, base_band + wall], [0.0, base_band + wall]]
+    band = radius_bottom + 0.015
+    prof = [[0.0, 0.0], [band, 0.0], [band, base_band], [radius_at(base_band), base_band], [radius_top, height]]
+    prof += [[radius_top - wall, height], [radius_bottom - wall, base_band + wall], [0.0, base_band + wall]]
     body = _revolved(prof, sections)
     y0, y1 = handle_low * height, handle_high * height
     x_out = max(radius_at(y0), radius_at(y1)) + handle_reach
