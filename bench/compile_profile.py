@@ -1,9 +1,9 @@
 """Benchmark: where a command's CPU time goes in JAX's compiler: XLA's backend compiles, tracing
 and lowering, by program and by pytest test, with the persistent cache's hits and misses, and the
 programs compiled again for the same argument shapes (what differs is baked in: a span budget, a
-setting). Every
-Python process the command starts (test workers, the CLI, the smoke DAG's jobs) records itself
-(``bench/compile_hook``); the summary adds them up. Run with nothing else on the machine.
+setting). Every Python process the command starts (test workers, the CLI, the smoke DAG's jobs)
+records itself (``bench/compile_hook``); the summary adds them up. Run with nothing else on the
+machine.
 
     .venv/bin/python bench/compile_profile.py [--out results/bench/compile_profile.json] [--top 25]
         [-- COMMAND ...]      # default: the whole test suite, .venv/bin/python -m pytest -q

@@ -40,22 +40,23 @@ def ear_teacup(radius=0.38, height=0.46, base_radius=0.17, foot_height=0.035, wa
     """A teacup whose side flares from a foot ring as a bell (the radius grows as the height's
     ``bell`` power), with a small ear handle: a tube swept along a teardrop from near the rim down
     to the lower body, widest near its top (a revolved body and a swept tube; labels 0 body, 1 handle)."""
+    def radius_of(s):  # s: the share of the side's height above the foot
+        return base_radius + (radius - base_radius) * s ** bell
+
     s = np.linspace(0.0, 1.0, 20)
     rise = foot_height + (height - foot_height) * s
-    out_r = base_radius + (radius - base_radius) * s ** bell
+    out_r = radius_of(s)
     prof = [[0.0, 0.0], [base_radius * 0.9, 0.0], [base_radius * 0.9, foot_height]]
     prof += [[r, y] for r, y in zip(out_r, rise)]
     prof += [[r - wall, y] for r, y in zip(out_r[::-1], rise[::-1]) if y > foot_height + wall]
     prof += [[0.0, foot_height + wall]]
     body = _revolved(prof, sections)
 
-    def radius_at(y):
-        return base_radius + (radius - base_radius) * np.clip((y - foot_height) / (height - foot_height), 0, 1) ** bell
-
     t = np.linspace(0.0, 1.0, 41)
     y = height * (handle_top + (handle_bottom - handle_top) * t)
     bulge = np.sin(np.pi * t) * (1.0 - 0.45 * t)  # a teardrop: widest in its upper half
-    pts = np.stack([radius_at(y) - 0.5 * wall + handle_reach * bulge, y, np.zeros_like(t)], 1)
+    side = radius_of(np.clip((y - foot_height) / (height - foot_height), 0, 1))
+    pts = np.stack([side - 0.5 * wall + handle_reach * bulge, y, np.zeros_like(t)], 1)
     v, f = _closed_tubes([(pts, np.full(len(pts), handle_radius))], sides=16)
     return _assemble([body, trimesh.Trimesh(v, f, process=False)], [0, 1])
 

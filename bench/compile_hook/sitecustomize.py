@@ -1,8 +1,9 @@
 """Loaded by every Python process that ``bench/compile_profile.py`` starts (its folder leads
 ``PYTHONPATH``): where ``IPM_COMPILE_PROFILE`` names a folder, records this process's JAX compiles
 (XLA's backend compile, tracing and lowering; persistent-cache hits and misses, by program name;
-each compile with its programs' argument shapes) with the pytest test running at the time (``PYTEST_CURRENT_TEST``, inherited by the processes a
-test starts), and writes them there as ``<pid>.json`` when the process ends. Elsewhere it does nothing."""
+each compile with its programs' argument shapes) with the pytest test running at the time
+(``PYTEST_CURRENT_TEST``, inherited by the processes a test starts), and writes them there as
+``<pid>.json`` when the process ends. Elsewhere it does nothing."""
 from __future__ import annotations
 
 import atexit
