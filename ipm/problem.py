@@ -213,7 +213,7 @@ class Problem:
 
     @lru_cache(maxsize=None)
     def _vertex_fn(self, key: tuple | None, lod: int, render: bool = True) -> BoundVertices:
-        return BoundVertices(_vertex_program(self.generator, key, lod, self._camera_kind, render), self.constants())
+        return _bound(_vertex_program(self.generator, key, lod, self._camera_kind, render), self.constants())
 
     def _placement(self, z, xp=np):
         """The object's translation and scale at ``z`` (``xp``: numpy or jax.numpy): the anchor
@@ -234,7 +234,7 @@ class Problem:
         whose part is in ``groups[g]``; every other vertex goes to the object's ground point, so
         its triangles have no area. With ``generator.all_faces(lod)`` in every group, one renderer
         scene serves all topologies (a new Mitsuba scene costs seconds of kernel compilation)."""
-        return BoundVertices(_group_program(self.generator, lod, groups, self._camera_kind), self.constants())
+        return _bound(_group_program(self.generator, lod, groups, self._camera_kind), self.constants())
 
     def regulariser(self, z: np.ndarray, weight: float) -> tuple[float, np.ndarray]:
         """Smoothness prior on the generator's control sequences: mean squared finite differences
@@ -306,10 +306,12 @@ class BoundVertices:
     """A vertex program ``program(z, constants)`` shared by every problem of one generator, topology
     and level of detail, bound to one problem's :meth:`Problem.constants`: called as ``f(z)``. The
     renderers compile ``program`` with the constants as an argument (``ipm.render.edge_programs``),
-    so a second case, seed, field of view or pitch start reads the compiled loss back."""
+    so a second case, seed, field of view or pitch start reads the compiled loss back. ``name``
+    spells out what, beside the package's source, fixes the program (a renderer keeps the programs
+    built on it between processes: ``ipm.render.programs``)."""
 
-    def __init__(self, program, constants: np.ndarray):
-        self.program, self.constants = program, constants
+    def __init__(self, program, constants: np.ndarray, name: str | None = None):
+        self.program, self.constants, self.name = program, constants, name
 
     def __call__(self, z):
         return self.program(z, self.constants)
@@ -317,6 +319,14 @@ class BoundVertices:
 
 _PROGRAMS: dict = {}
 """Vertex programs by (generator class, topology or groups, level of detail, camera, render)."""
+
+
+def _bound(name: tuple, constants: np.ndarray) -> BoundVertices:
+    """The vertex program ``_PROGRAMS[name]`` bound to ``constants``, with ``name`` spelt out."""
+    def spell(v):
+        return f"{v.__module__}.{v.__qualname__}" if isinstance(v, type) else repr(v)
+
+    return BoundVertices(_PROGRAMS[name], constants, " ".join(spell(v) for v in name))
 
 
 def length_room(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -328,8 +338,9 @@ def length_room(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np
         return np.where(near > 0, np.log(np.maximum(near, 1e-300)), -np.inf), np.log(far)
 
 
-def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera, render: bool = True):
-    """jit(z, constants) -> flattened vertices of ``gen``'s topology ``key`` at ``lod``."""
+def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera, render: bool = True) -> tuple:
+    """The name in ``_PROGRAMS`` of jit(z, constants) -> flattened vertices of ``gen``'s topology
+    ``key`` at ``lod``."""
     name = (type(gen), "topology", key, lod, camera, render)
     if name not in _PROGRAMS:
         positions = gen.positions_fn(key, lod)
@@ -339,11 +350,12 @@ def _vertex_program(gen: Generator, key: tuple | None, lod: int, camera, render:
             return world(positions(shape_x(z)), z, c).ravel()
 
         _PROGRAMS[name] = jax.jit(fn)
-    return _PROGRAMS[name]
+    return name
 
 
-def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...], camera):
-    """jit(z, constants) -> vertices of every render group (:meth:`Problem.group_vertex_fn`)."""
+def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...], camera) -> tuple:
+    """The name in ``_PROGRAMS`` of jit(z, constants) -> vertices of every render group
+    (:meth:`Problem.group_vertex_fn`)."""
     name = (type(gen), "groups", groups, lod, camera, True)
     if name not in _PROGRAMS:
         positions = gen.positions_fn(None, lod)
@@ -358,7 +370,7 @@ def _group_program(gen: Generator, lod: int, groups: tuple[tuple[int, ...], ...]
             return jnp.concatenate([jnp.where((present & m[part])[:, None], v, ground) for m in members]).ravel()
 
         _PROGRAMS[name] = jax.jit(fn)
-    return _PROGRAMS[name]
+    return name
 
 
 def _maps(gen: Generator, key: tuple | None, camera, render: bool):

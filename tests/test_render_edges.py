@@ -305,7 +305,8 @@ def fresh_programs():
     """The renderer's program builders emptied before and after (their programs hold how they were built)."""
     from ipm.render import edges
 
-    builders = (edges._render_fn, edges._class_render_fn, edges._loss_fn, edges._silhouette_loss, edges._class_loss_fn)
+    builders = (edges._render_fn, edges._class_render_fn, edges._loss_fn, edges._silhouette_loss, edges._class_loss_fn,
+                edges._pullback)
 
     def clear():
         for b in builders:
@@ -318,13 +319,14 @@ def fresh_programs():
 
 @pytest.mark.slow
 def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_path, fresh_programs):
-    """With a program folder the renderer's programs (silhouette loss, render,
-    class-mask loss) are exported there and give the numbers of programs traced afresh; a later
-    process loads them without tracing (export made to fail); a file that does not read back is
-    exported again."""
+    """With a program folder the renderer's programs (silhouette loss, render, class-mask loss) and
+    those around a generator's named vertex program (the mug's loss, its pullback) are exported
+    there and give the numbers of programs traced afresh; a later process loads them without
+    tracing (export made to fail); a file that does not read back is exported again."""
     from jax import export
 
     from ipm.render import edges, programs
+    from ipm.render.edge_programs import split
 
     gen, problem, z0, fn, topo = _mug()
     _, hz, hfn, htopo, groups, hcams = _house()
@@ -340,6 +342,8 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
     def numbers(every: bool = True):
         r = EdgeRenderer(cams, FOV, 32, 32)
         out = list(r.loss_and_grad(fn, z, topo.faces, topo.n_vertices, targets, seed=3))
+        program, constants, name = split(fn)
+        out.append(edges._pullback(program, name)(z, constants, np.linspace(-1, 1, 3 * topo.n_vertices)))
         if every:  # the class loss without the building's pullback (half a minute to compile)
             class_loss = edges._class_loss_fn(32, 32, h.ss, budgets, ((0.5,), 1, "mse"))
             out += [*h.render(v, groups)[0],
@@ -347,27 +351,31 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
                                 h._jitter(1))[:2]]
         return out
 
+    monkeypatch.setattr(programs, "program_folder", lambda: None)  # every program traced here
     traced = numbers()
     folder = tmp_path / "programs"
     monkeypatch.setattr(programs, "program_folder", lambda: folder)
     fresh_programs()
     for a, b in zip(traced, numbers()):
         np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
-    assert len(list(folder.glob("*.jaxexport"))) == 3  # silhouette loss, class loss, class render
+    # the mug's loss, the silhouette loss it calls, the mug's pullback, class loss, class render
+    assert len(list(folder.glob("*.jaxexport"))) == 5
 
     def no_export(*args, **kwargs):
         raise AssertionError("traced again")
 
-    first = min(folder.glob("*.jaxexport"), key=lambda p: p.stat().st_mtime)  # the single loss
-    first.write_bytes(b"half a program")
+    half = b"half a program"
+    for stored in folder.glob("*.jaxexport"):
+        stored.write_bytes(half)
     fresh_programs()
-    numbers(every=False)  # the unreadable file exported again
+    numbers(every=False)  # the unreadable files it reads exported again
+    assert sum(p.read_bytes() != half for p in folder.glob("*.jaxexport")) == 3
     with monkeypatch.context() as m:
         m.setattr(export, "export", no_export)
         fresh_programs()
         for a, b in zip(traced, numbers(every=False)):
             np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-9)
-    assert len(list(folder.glob("*.jaxexport"))) == 3
+    assert len(list(folder.glob("*.jaxexport"))) == 5
 
 
 def test_program_folder_keeps_the_most_recently_used(tmp_path):

@@ -6,7 +6,7 @@ of the full parameter vector, so ``jax.jacfwd`` gives dpos/dP (zero for discrete
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Callable, Sequence
 
@@ -93,11 +93,16 @@ class Topology:
     """Triangle vertex indices, shape (F, 3), counter-clockwise seen from outside."""
     labels: np.ndarray
     """Part label per triangle, shape (F,), indexing the generator's ``part_names``."""
-    uv: np.ndarray
-    """Texture coordinates per triangle corner, shape (F, 3, 2): each part's charts in [0, 1]^2
-    (``ipm.uv``), a seam splitting a vertex's UV without splitting the vertex."""
-    n_vertices: int
+    charts: Callable[[], np.ndarray] = field(repr=False, compare=False)
+    """Computes :attr:`uv` when first asked: a search meets many topologies and writes one mesh."""
+    n_vertices: int = 0
     """How many positions the topology's faces index."""
+
+    @cached_property
+    def uv(self) -> np.ndarray:
+        """Texture coordinates per triangle corner, shape (F, 3, 2): each part's charts in [0, 1]^2
+        (``ipm.uv``), a seam splitting a vertex's UV without splitting the vertex."""
+        return self.charts()
 
 
 @dataclass

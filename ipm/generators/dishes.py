@@ -192,7 +192,7 @@ class Dishes(Generator):
             labels.append(np.ones(len(faces[-1]), np.int32))
             uv.append(sweep_uv(faces[-1], n_s, n_c, offset, np.linspace(0.0, 1.0, n_s), *handle))
         n_vertices = rows * n_r + 2 + (n_s * n_c + 2 if key[0] else 0)
-        return Topology(np.concatenate(faces), np.concatenate(labels), np.concatenate(uv), n_vertices)
+        return Topology(np.concatenate(faces), np.concatenate(labels), lambda: np.concatenate(uv), n_vertices)
 
     @lru_cache(maxsize=None)
     def positions_fn(self, key, lod):

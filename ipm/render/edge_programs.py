@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 from functools import lru_cache
+from pathlib import Path
 from typing import Callable
 
 import jax
@@ -113,12 +114,12 @@ def _class_render_fn(width: int, height: int, ss: int, budgets: tuple[int, int],
 
 
 @lru_cache(maxsize=64)
-def _loss_fn(program: Callable, width: int, height: int, ss: int, budget: int):
+def _loss_fn(program: Callable, name: str | None, width: int, height: int, ss: int, budget: int):
     """jit(z, constants, faces, targets, w2c, focal, jitter) -> (loss, d loss / d z, spans needed
-    per view): the generator's vertices ``program(z, constants)`` (:func:`split`) and pullback around
-    :func:`_silhouette_loss` in one program. The faces and the problem's constants are arguments,
-    not constants (XLA would fold them into the program at every compilation, and a new case or
-    camera would compile anew)."""
+    per view): the generator's vertices ``program(z, constants)`` (:func:`split`, its ``name``) and
+    pullback around :func:`_silhouette_loss` in one program. The faces and the problem's constants
+    are arguments, not constants (XLA would fold them into the program at every compilation, and a
+    new case or camera would compile anew)."""
     render = _silhouette_loss(width, height, ss, budget)
 
     def fn(z, constants, faces, targets, w2c, focal, jitter):
@@ -126,16 +127,31 @@ def _loss_fn(program: Callable, width: int, height: int, ss: int, budget: int):
         loss, grad, needed = render.inline(vertices, faces, targets, w2c, focal, jitter)
         return loss, pullback(grad)[0], needed
 
-    return jax.jit(fn)
+    return _with_generator(fn, name, "silhouette_loss", width, height, ss, budget)
 
 
-def split(vertex_fn: Callable) -> tuple[Callable, np.ndarray]:
-    """``(program(z, constants), constants)`` of a vertex function: a ``BoundVertices``'s own
-    (``ipm.problem``), or any other ``f(z)`` as a program that ignores its (empty) constants."""
+def split(vertex_fn: Callable) -> tuple[Callable, np.ndarray, str | None]:
+    """``(program(z, constants), constants, name)`` of a vertex function: a ``BoundVertices``'s own
+    (``ipm.problem``), or any other ``f(z)`` as a program that ignores its (empty) constants and
+    has no name."""
     program = getattr(vertex_fn, "program", None)
     if program is not None:
-        return program, vertex_fn.constants
-    return _ignoring_constants(vertex_fn), _NO_CONSTANTS
+        return program, vertex_fn.constants, vertex_fn.name
+    return _ignoring_constants(vertex_fn), _NO_CONSTANTS, None
+
+
+def _with_generator(fn: Callable, name: str | None, *settings) -> Callable:
+    """``fn``, a program around the generator's vertex program ``name``, jitted; kept between
+    processes where that program has a name (its code: the package's every module)."""
+    if name is None:
+        return jax.jit(fn)
+    return StoredProgram(" ".join(map(str, (name, *settings))), fn, package_sources())
+
+
+@lru_cache(maxsize=1)
+def package_sources() -> tuple[str, ...]:
+    """Every module of the ``ipm`` package: what a generator's vertex program may run."""
+    return tuple(sorted(str(p) for p in Path(__file__).resolve().parents[1].rglob("*.py")))
 
 
 _NO_CONSTANTS = np.zeros(0, np.float32)
@@ -216,7 +232,10 @@ def _stored(fn: Callable, *name) -> StoredProgram:
 
 
 @lru_cache(maxsize=64)
-def _pullback(program: Callable):
+def _pullback(program: Callable, name: str | None = None):
     """jit(z, constants, d loss / d vertices) -> d loss / d z: the vector-Jacobian product of the
-    generator's vertices ``program(z, constants)``."""
-    return jax.jit(lambda z, constants, cotangent: jax.vjp(lambda z: program(z, constants), z)[1](cotangent)[0])
+    generator's vertices ``program(z, constants)`` (:func:`split`, its ``name``)."""
+    def fn(z, constants, cotangent):
+        return jax.vjp(lambda z: program(z, constants), z)[1](cotangent)[0]
+
+    return _with_generator(fn, name, "pullback")

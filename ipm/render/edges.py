@@ -165,11 +165,11 @@ class EdgeRenderer:
         if highlight is not None:
             return self._class_call(vertex_fn, z, faces, targets, jitter, n_vertices, highlight)
         groups = _face_classes(faces)[0]
-        program, constants = split(vertex_fn)
+        program, constants, name = split(vertex_fn)
 
         def run(f, budget):
-            return _loss_fn(program, self.width, self.height, self.ss, budget)(z, constants, f, targets, self._w2c,
-                                                                               self.focal, jitter)
+            return _loss_fn(program, name, self.width, self.height, self.ss, budget)(z, constants, f, targets,
+                                                                                     self._w2c, self.focal, jitter)
 
         loss, grad = self._run((vertex_fn, *_faces_key(groups)), groups, lambda: vertex_fn(z), run)
         return float(loss), np.nan_to_num(np.asarray(grad, np.float64), nan=0.0, posinf=0.0, neginf=0.0).reshape(-1)
@@ -194,11 +194,11 @@ class EdgeRenderer:
         if key not in self._classes:
             self._classes[key] = jnp.asarray(classes)
         cls, class_targets = self._classes[key], self._on_device(highlight[0])
-        program, constants = split(vertex_fn)
+        program, constants, name = split(vertex_fn)
         vertices = vertex_fn(z)
         loss, dv = self._run(key, groups, lambda: vertices, lambda f, budget: _class_loss_fn(
             self.width, self.height, self.ss, budget, tuple(highlight[1:]), self.cull)(
             vertices, f, cls, targets, class_targets, self._w2c, self.focal, jitter), classes,
             ("class", len(groups), len(highlight[1])))
-        grad = np.asarray(_pullback(program)(z, constants, dv), np.float64)
+        grad = np.asarray(_pullback(program, name)(z, constants, dv), np.float64)
         return float(loss), np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)

@@ -350,10 +350,14 @@ class Buildings(Generator):
         faces, per_solid = self._faces(lod)
         keep = np.repeat(present.astype(bool), per_solid)
         faces, labels = faces[keep], np.repeat(parts, per_solid)[keep]
-        ref = np.where(self.spec.discrete, x, self._typical())  # the charts' shapes: a typical building's faces
-        at = np.asarray(self.positions_fn(key, lod)(jnp.asarray(ref, jnp.float32)), np.float64)
-        uv = charts(self._layout_fn(lod)[1], at, parts, present.astype(bool))
-        return Topology(faces, labels.astype(np.int32), uv, len(at))
+
+        def uv():
+            ref = np.where(self.spec.discrete, x, self._typical())  # the charts' shapes: a typical building's faces
+            at = np.asarray(self.positions_fn(key, lod)(jnp.asarray(ref, jnp.float32)), np.float64)
+            return charts(self._layout_fn(lod)[1], at, parts, present.astype(bool))
+
+        n_positions = sum(n * k for _, n, k in self._layout_fn(lod)[1])  # every solid at its largest count
+        return Topology(faces, labels.astype(np.int32), uv, n_positions)
 
     def positions_fn(self, key, lod):
         """One function for every topology at ``lod`` (the solids at their largest counts; the
