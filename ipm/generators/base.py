@@ -95,7 +95,7 @@ class Topology:
     """Part label per triangle, shape (F,), indexing the generator's ``part_names``."""
     charts: Callable[[], np.ndarray] = field(repr=False, compare=False)
     """Computes :attr:`uv` when first asked: a search meets many topologies and writes one mesh."""
-    n_vertices: int = 0
+    n_vertices: int
     """How many positions the topology's faces index."""
 
     @cached_property
