@@ -143,9 +143,7 @@ def split(vertex_fn: Callable) -> tuple[Callable, np.ndarray, str | None]:
 def _with_generator(fn: Callable, name: str | None, *settings) -> Callable:
     """``fn``, a program around the generator's vertex program ``name``, jitted; kept between
     processes where that program has a name (its code: the package's every module)."""
-    if name is None:
-        return jax.jit(fn)
-    return StoredProgram(" ".join(map(str, (name, *settings))), fn, package_sources())
+    return jax.jit(fn) if name is None else _stored(fn, name, *settings, sources=package_sources())
 
 
 @lru_cache(maxsize=1)
@@ -226,9 +224,10 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
     return _stored(fn, "class_loss", width, height, ss, budgets, highlight, *(("cull",) if cull else ()))
 
 
-def _stored(fn: Callable, *name) -> StoredProgram:
-    """``fn``, a program of the edge renderer with the settings ``name``, kept between processes."""
-    return StoredProgram(" ".join(map(str, name)), fn, SOURCES)
+def _stored(fn: Callable, *name, sources: tuple[str, ...] = SOURCES) -> StoredProgram:
+    """``fn``, a program of the edge renderer (the code of ``sources``) with the settings ``name``,
+    kept between processes."""
+    return StoredProgram(" ".join(map(str, name)), fn, sources)
 
 
 @lru_cache(maxsize=64)
