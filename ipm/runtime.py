@@ -74,6 +74,7 @@ def configure_threads(threads: int, device: str = "cpu", quick_compile: bool = F
     elif not _AfterImport.waiting("jax"):
         sys.meta_path.insert(0, _AfterImport("jax", lambda module: _start_xla_cpu(_THREADS)))
     _keep_fault_handlers("pycolmap")
+    _defer_plotly_viewer()
 
 
 _THREADS: int | None = None
@@ -253,6 +254,40 @@ def _keep_fault_handlers(module: str) -> None:
     saved: dict = {}
     sys.meta_path.insert(0, _AfterImport(module, lambda _: _set_signal_actions(saved),
                                          before=lambda: saved.update(_signal_actions())))
+
+
+PLOTLY_VIEWER = "open3d.visualization.draw_plotly"
+"""The module of open3d's plotly viewer, which open3d imports with itself (dash and plotly)."""
+
+
+def _defer_plotly_viewer() -> None:
+    """Let open3d's import skip its plotly viewer (:data:`PLOTLY_VIEWER`, half of open3d's import:
+    0.5 of 1.0 s of CPU on the slower kind), which the package never calls: a stand-in module whose
+    functions import the viewer when first called. Every process that casts rays (the metrics,
+    the GA, the texture stage) starts that much sooner."""
+    if "open3d" in sys.modules or PLOTLY_VIEWER in sys.modules:
+        return
+    import types
+
+    stand_in = types.ModuleType(PLOTLY_VIEWER)
+
+    def viewer():
+        if sys.modules.get(PLOTLY_VIEWER) is stand_in:
+            del sys.modules[PLOTLY_VIEWER]
+        return importlib.import_module(PLOTLY_VIEWER)
+
+    def deferred(name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+
+        def call(*args, **kwargs):
+            return getattr(viewer(), name)(*args, **kwargs)
+
+        call.__name__ = call.__qualname__ = name
+        return call
+
+    stand_in.__getattr__ = deferred
+    sys.modules[PLOTLY_VIEWER] = stand_in
 
 
 def _point_drjit_at_llvm19() -> None:

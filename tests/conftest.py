@@ -160,16 +160,19 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(len(os.sched_getaffinity(0)), MAX_WORKERS))
 
 
-FIRST_MODULE = "test_workflow.py"
-"""Runs first: its smoke run of the whole DAG takes minutes, longer than any other module."""
+FIRST_MODULES = ("test_workflow.py", "test_slurm.py")
+"""Run first, in this order: the smoke run of the whole DAG takes minutes, longer than any other
+module; the SLURM cluster's DAG mostly waits on its scheduler, and beside the smoke run (whose
+Snakemake has two cores to fill) that wait costs no core, where at the end it left one idle."""
 
 
 def pytest_collection_modifyitems(config, items):
-    """The workflow's module first, then the other modules with slow tests, then the rest (each
+    """:data:`FIRST_MODULES` first, then the other modules with slow tests, then the rest (each
     module goes to one worker whole, ``--dist loadfile``): the long ones start while the short
     ones fill the other workers, instead of ending the run alone."""
     has_slow = {item.path for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: (item.path.name != FIRST_MODULE, item.path not in has_slow))
+    first = {name: i for i, name in enumerate(FIRST_MODULES)}
+    items.sort(key=lambda item: (first.get(item.path.name, len(first)), item.path not in has_slow))
 
 
 def pytest_runtest_logreport(report):

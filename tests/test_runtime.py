@@ -73,6 +73,17 @@ def test_fits_that_compile_per_case_take_the_quick_code_generator(quick):
     assert METHODS["diff"].compiles and not METHODS["diffsdf"].compiles and not METHODS["occnet"].compiles
 
 
+def test_open3d_is_imported_without_its_plotly_viewer():
+    """After ``configure_threads`` open3d's import leaves dash and plotly out (half its import time);
+    its plotly viewer still works when called, importing them then."""
+    code = ("import sys; from ipm.runtime import configure_threads; configure_threads(1); import numpy as np; "
+            "import open3d; print('dash' in sys.modules or 'plotly' in sys.modules); "
+            "cloud = open3d.geometry.PointCloud(open3d.utility.Vector3dVector(np.eye(3))); "
+            "fig = open3d.visualization.get_plotly_fig([cloud]); print(type(fig).__name__, len(fig.data))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "Figure", "1"], out
+
+
 def _job_with_cache(folder, code: str) -> subprocess.CompletedProcess:
     """``python -c code`` with IPM_JAX_CACHE at ``folder``, every program cached however quick to
     compile, and none of JAX's own cache settings from this environment."""
