@@ -169,7 +169,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     from ipm.io.semantic import save_labels
     from ipm.render.semantic import render_labels, render_tree_rgb
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.render.textured import render_rgb
+    from ipm.render.textured import render_painted
 
     if n_views < 1 or res < 16:
         raise UserError("need at least 1 view and 16 px")
@@ -194,7 +194,8 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
         elif layout == "photo":
             rgb, masks, lens = photographs(case, spec, v, f, uv, c2w, fov, res, spp)
         else:
-            rgb = render_rgb(v, f, uv, c2w, fov, res, res, spec.get("texture_seed", 0), spp)
+            rgb = render_painted(v, f, labels, uv, reference_appearance(spec, v, f, labels, uv), c2w, fov, res,
+                                 res, spp)
             masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
         frames = []
         for i in tqdm(range(n_views), desc=f"synth {case}", disable=not progress, leave=False):
@@ -209,6 +210,24 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
         write_views(tmp / "transforms.json", fov, res, res, frames, scheme[0] if scheme else None,
                     lens if layout == "photo" else None, None if layout == "photo" else "reference")
         _write_reference(tmp, spec, v, f, labels)
+
+
+def reference_appearance(case: dict, v, f, labels, uv) -> dict:
+    """The textures a cup's or a building's reference views wear, one per part label
+    (``ipm.render.appearance``; a building's parts by their material, a recipe's by its semantic
+    class), chosen by the case's ``texture_seed``."""
+    from ipm.render.appearance import BUILDING_PARTS, reference_textures
+
+    seed, scheme = case.get("texture_seed", 0), semantic_scheme(case)
+    if scheme is None:
+        return reference_textures("cup", v, f, labels, uv, seed)
+    names, part_label = scheme
+    by_label = {label: name for name, label in names.items()}
+    src = case["source"]
+    parts = get_generator(src["generator"]).part_names if "generator" in src else ()
+    materials = {int(k): BUILDING_PARTS[parts[k]] if k < len(parts) else by_label[int(part_label[k])]
+                 for k in np.unique(labels)}
+    return reference_textures("building", v, f, labels, uv, seed, materials)
 
 
 def photographs(case: str, spec: dict, v, f, uv, c2w: np.ndarray, fov: float, res: int, spp: int,

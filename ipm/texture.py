@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.uv import texel_hits
+from ipm.uv import Texels, texels
 
 TEXTURE_RES = 256
 """Texels across a part's square texture."""
@@ -39,36 +39,6 @@ class Refinement:
 REFINEMENT: Refinement | None = None
 """The diff path's refinement (docs/decisions.md, "Texture refinement"; None: projection and fill
 alone)."""
-
-
-@dataclass
-class Texels:
-    """The texels one part's charts cover: their rows and columns, and the surface point, facet
-    normal and triangle of each."""
-
-    rows: np.ndarray
-    cols: np.ndarray
-    points: np.ndarray
-    normals: np.ndarray
-    triangles: np.ndarray
-
-
-def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) -> Texels:
-    """The texel centres of a ``res`` square texture that the triangles' UVs (F, 3, 2) cover (u along
-    the columns, v along the rows from the bottom, as glTF's and Mitsuba's bitmaps are read)."""
-    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces)
-    owner = np.full((res, res), -1)
-    weights = np.zeros((res, res, 3))
-    for k, cols, rows, bary in texel_hits(uv, res):
-        owner[rows, cols] = k
-        weights[rows, cols] = bary
-    v_idx, u_idx = np.nonzero(owner >= 0)
-    k = owner[v_idx, u_idx]
-    corners = vertices[faces[k]]  # (N, 3, 3)
-    points = np.einsum("nc,ncj->nj", weights[v_idx, u_idx], corners)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-    return Texels(res - 1 - v_idx, u_idx, points, normal, k)
 
 
 def _bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:

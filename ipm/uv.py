@@ -8,6 +8,8 @@ and a UV (``ipm.io.mesh.weld``).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -43,33 +45,78 @@ def sweep_uv(faces: np.ndarray, n_rows: int, n_ring: int, offset: int, row_v: np
     return out
 
 
-def texel_hits(corner_uv: np.ndarray, res: int, edges: bool = True):
-    """For each triangle with an area in UV (F, 3, 2), the texel centres of a ``res`` square over
-    [0, 1]^2 inside it (``edges``: on its edges too): yields the triangle's index, the texels'
-    columns and rows (row 0 at v = 0) and their barycentric coordinates (n, 3)."""
+def texel_hits(corner_uv: np.ndarray, res: int, edges: bool = True, chunk: int = 1 << 22):
+    """For the triangles with an area in UV (F, 3, 2), the texel centres of a ``res`` square over
+    [0, 1]^2 inside each (``edges``: on its edges too), all at once: the triangle's index, the
+    texel's column and row (row 0 at v = 0) and its barycentric coordinates (n, 3), ordered by
+    triangle. Candidates (each triangle's texel box) are tested ``chunk`` at a time."""
     tri = np.asarray(corner_uv, np.float64) * res - 0.5  # texel centres at integers
-    lo = np.clip(np.ceil(tri.min(1)), 0, res - 1).astype(int)
-    hi = np.clip(np.floor(tri.max(1)), 0, res - 1).astype(int)
+    lo = np.clip(np.ceil(tri.min(1)), 0, res - 1).astype(np.int64)
+    hi = np.clip(np.floor(tri.max(1)), 0, res - 1).astype(np.int64)
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    width, height = np.maximum(hi - lo + 1, 0).T
+    count = np.where(np.abs(det) > 1e-12, width * height, 0)
     eps = -1e-9 if edges else 1e-9
-    for k in np.flatnonzero(np.abs(det) > 1e-12):
-        xs, ys = np.meshgrid(np.arange(lo[k, 0], hi[k, 0] + 1), np.arange(lo[k, 1], hi[k, 1] + 1))
+    found = []
+    ends = np.cumsum(count)
+    first = 0
+    while first < len(count):  # triangles [first, last) hold at most ``chunk`` candidates (or one triangle)
+        last = max(first + 1, int(np.searchsorted(ends, ends[first] - count[first] + chunk, side="right")))
+        k = np.repeat(np.arange(first, last), count[first:last])
+        local = np.arange(len(k)) - np.repeat(ends[first:last] - count[first:last] - (ends[first] - count[first]),
+                                              count[first:last])
+        xs, ys = lo[k, 0] + local % width[k], lo[k, 1] + local // width[k]
         px, py = xs - a[k, 0], ys - a[k, 1]
         s = (px * (c[k, 1] - a[k, 1]) - py * (c[k, 0] - a[k, 0])) / det[k]
         t = (py * (b[k, 0] - a[k, 0]) - px * (b[k, 1] - a[k, 1])) / det[k]
         inside = (s > eps) & (t > eps) & (s + t < 1 - eps)
         s, t = s[inside], t[inside]
-        yield k, xs[inside], ys[inside], np.stack([1 - s - t, s, t], -1)
+        found.append((k[inside], xs[inside], ys[inside], np.stack([1 - s - t, s, t], -1)))
+        first = last
+    if not found:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    return tuple(np.concatenate(parts) for parts in zip(*found))
+
+
+@dataclass
+class Texels:
+    """The texels one part's charts cover: their rows and columns, and the surface point, facet
+    normal and triangle of each."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    triangles: np.ndarray
+
+
+def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) -> Texels:
+    """The texel centres of a ``res`` square texture that the triangles' UVs (F, 3, 2) cover (u along
+    the columns, v along the rows from the bottom, as glTF's and Mitsuba's bitmaps are read)."""
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces)
+    owner = np.full((res, res), -1)
+    weights = np.zeros((res, res, 3))
+    hit, cols, rows, bary = texel_hits(uv, res)
+    np.maximum.at(owner, (rows, cols), hit)  # a texel two triangles cover: the later triangle's
+    last = owner[rows, cols] == hit
+    weights[rows[last], cols[last]] = bary[last]
+    v_idx, u_idx = np.nonzero(owner >= 0)
+    k = owner[v_idx, u_idx]
+    corners = vertices[faces[k]]  # (N, 3, 3)
+    points = np.einsum("nc,ncj->nj", weights[v_idx, u_idx], corners)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    return Texels(res - 1 - v_idx, u_idx, points, normal, k)
 
 
 def overlap(corner_uv: np.ndarray, res: int = 1024) -> float:
     """Share of the texels (centres of a ``res`` square over [0, 1]^2) inside some triangle that lie
     inside more than one: 0 for a layout without overlaps (a texel on a shared edge counts for
     neither triangle)."""
+    _, cols, rows, _ = texel_hits(corner_uv, res, edges=False)
     count = np.zeros((res, res), np.int32)
-    for _, cols, rows, _ in texel_hits(corner_uv, res, edges=False):
-        count[rows, cols] += 1
+    np.add.at(count, (rows, cols), 1)
     covered = int((count > 0).sum())
     return float((count > 1).sum() / covered) if covered else 0.0
 

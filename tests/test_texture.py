@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ipm.errors import UserError
-from ipm.texture import fill, texels
+from ipm.texture import fill
+from ipm.uv import texels
 
 SQUARE = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]], [[0.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
 PLANE = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 2.0, 0.0], [-1.0, 2.0, 0.0]])

@@ -1,7 +1,8 @@
 """Colour renders with Mitsuba under the reference lighting (a dim constant environment and a
-directional light, path traced): the references' views in a seeded, high-frequency procedural
-texture on the mesh's UVs (features for COLMAP), part-coloured previews, and meshes wearing
-painted part textures (the texture stage's shading, refinement and scores).
+directional light, path traced): meshes wearing part textures (the references' materials,
+``ipm.render.appearance``; the texture stage's shading, refinement and scores), part-coloured
+previews, and a seeded high-frequency noise texture (the segmenter's training photographs and the
+``photo`` layout's textured cases).
 """
 from __future__ import annotations
 
@@ -29,19 +30,6 @@ def unweld(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray):
 PART_COLOURS = np.array([[0.75, 0.75, 0.78], [0.85, 0.35, 0.15], [0.2, 0.55, 0.25], [0.2, 0.35, 0.8],
                          [0.8, 0.7, 0.2], [0.6, 0.3, 0.7]])
 """Diffuse colour of part label k (body grey, handle orange, ...), cycling beyond six parts."""
-
-
-def render_rgb(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, height: int,
-               texture_seed: int = 0, spp: int = 64) -> np.ndarray:
-    """Linear RGB renders (n, height, width, 3) of a textured mesh for each camera."""
-    import mitsuba as mi
-
-    v, f, t = unweld(np.asarray(vertices), np.asarray(faces), np.asarray(uv))
-    mesh = mi.Mesh("object", len(v), len(f), has_vertex_texcoords=True,
-                   props=_bsdf_props(procedural_texture(texture_seed)))
-    mp = mi.traverse(mesh)
-    mp["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
-    return _render_lit(mesh, v, f, c2w, fov_x, width, height, spp)
 
 
 def render_parts(vertices, faces, labels, c2w: np.ndarray, fov_x: float, width: int, height: int,
