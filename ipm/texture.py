@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.uv import Texels, texels
+from ipm.uv import Texels, pad, texels
 
 TEXTURE_RES = 256
 """Texels across a part's square texture."""
@@ -142,20 +142,6 @@ def fill(texture: np.ndarray, seen: np.ndarray, covered: tuple[np.ndarray, np.nd
         todo &= ~have
     out[rows[todo], cols[todo]] = mean
     return out
-
-
-def pad(texture: np.ndarray, covered: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """``texture`` with every texel outside the charts (not among ``covered`` (rows, cols)) set to
-    its nearest covered texel's colour, so that filtering at a chart's edge never reads the empty
-    gutter (a band one or two texels high, a goblet's foot, would render dark)."""
-    from scipy.ndimage import distance_transform_edt
-
-    outside = np.ones(texture.shape[:2], bool)
-    outside[covered] = False
-    if outside.all():
-        return texture
-    rows, cols = distance_transform_edt(outside, return_distances=False, return_indices=True)
-    return texture[rows, cols]
 
 
 def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,

@@ -110,6 +110,20 @@ def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) ->
     return Texels(res - 1 - v_idx, u_idx, points, normal, k)
 
 
+def pad(texture: np.ndarray, covered: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``texture`` with every texel outside the charts (not among ``covered`` (rows, cols)) set to
+    its nearest covered texel's colour, so that filtering at a chart's edge never reads the empty
+    gutter (a band one or two texels high, a goblet's foot, would render dark)."""
+    from scipy.ndimage import distance_transform_edt
+
+    outside = np.ones(texture.shape[:2], bool)
+    outside[covered] = False
+    if outside.all():
+        return texture
+    rows, cols = distance_transform_edt(outside, return_distances=False, return_indices=True)
+    return texture[rows, cols]
+
+
 def overlap(corner_uv: np.ndarray, res: int = 1024) -> float:
     """Share of the texels (centres of a ``res`` square over [0, 1]^2) inside some triangle that lie
     inside more than one: 0 for a layout without overlaps (a texel on a shared edge counts for

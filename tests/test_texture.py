@@ -182,7 +182,7 @@ def test_dishes_group_texels_by_their_height_round_the_axis():
 
 
 def test_pad_gives_the_gutter_its_nearest_chart_colour():
-    from ipm.texture import pad
+    from ipm.uv import pad
 
     texture = np.zeros((4, 6, 3))
     texture[1:3, 1:3] = (1.0, 0.5, 0.0)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ipm.uv import texels
+from ipm.uv import pad, texels
 
 TEXTURE_SIZE = 512
 """Texels along a side of each part's baked bitmap."""
@@ -62,8 +62,6 @@ def bake(vertices, faces, corner_uv, colour, size: int = TEXTURE_SIZE) -> np.nda
     take ``colour(points (n, 3), normals (n, 3))`` at the surface point each maps to (``ipm.uv.texels``);
     texels no triangle covers take their nearest covered texel's colour (no dark seams under
     filtering). UVs past 1 (a revolved part's seam) wrap, as the renderer's bitmap does."""
-    from scipy.ndimage import distance_transform_edt
-
     f, uv = np.asarray(faces), np.asarray(corner_uv, np.float64)
     uv = uv - np.floor(uv.min(1, keepdims=True))  # each triangle's UVs from [0, 1)
     over = np.flatnonzero(uv.max((1, 2)) > 1.0)  # and a copy one to the left where they pass 1
@@ -73,10 +71,7 @@ def bake(vertices, faces, corner_uv, colour, size: int = TEXTURE_SIZE) -> np.nda
     if len(found.rows) == 0:
         return out
     out[found.rows, found.cols] = colour(found.points, found.normals)
-    covered = np.zeros((size, size), bool)
-    covered[found.rows, found.cols] = True
-    _, (ii, jj) = distance_transform_edt(~covered, return_indices=True)
-    return out[ii, jj]
+    return pad(out, (found.rows, found.cols))
 
 
 def cup_design(seed: int) -> dict:
