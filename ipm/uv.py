@@ -60,12 +60,12 @@ def texel_hits(corner_uv: np.ndarray, res: int, edges: bool = True, chunk: int =
     eps = -1e-9 if edges else 1e-9
     found = []
     ends = np.cumsum(count)
+    starts = ends - count  # each triangle's first candidate
     first = 0
     while first < len(count):  # triangles [first, last) hold at most ``chunk`` candidates (or one triangle)
-        last = max(first + 1, int(np.searchsorted(ends, ends[first] - count[first] + chunk, side="right")))
+        last = max(first + 1, int(np.searchsorted(ends, starts[first] + chunk, side="right")))
         k = np.repeat(np.arange(first, last), count[first:last])
-        local = np.arange(len(k)) - np.repeat(ends[first:last] - count[first:last] - (ends[first] - count[first]),
-                                              count[first:last])
+        local = np.arange(starts[first], ends[last - 1]) - starts[k]  # the candidate's place in its box
         xs, ys = lo[k, 0] + local % width[k], lo[k, 1] + local // width[k]
         px, py = xs - a[k, 0], ys - a[k, 1]
         s = (px * (c[k, 1] - a[k, 1]) - py * (c[k, 0] - a[k, 0])) / det[k]

@@ -57,7 +57,7 @@ def test_a_cup_wears_bands_all_round_and_a_star_on_one_side():
     seed = 5
     design = cup_design(seed)
     body = np.array([[0.3, 0.0, 0.0], [-0.3, 1.0, 0.0], [0.0, 0.5, 0.3], [0.0, 0.5, -0.3]])
-    colour = cup_material(body, np.zeros(len(body), int), seed)
+    colour = cup_material(body, seed)
     a, p, n = _ring(0.3, design["top"] - 0.5 * design["widths"][0])
     band = _parallel(colour(p, n), design["band"])
     assert band.mean() > 0.85
@@ -66,7 +66,7 @@ def test_a_cup_wears_bands_all_round_and_a_star_on_one_side():
     star = _parallel(colour(p, n), design["band"])
     off = np.abs((a - design["star_at"] + np.pi) % (2 * np.pi) - np.pi)
     assert star[off < 0.05].all() and not star[off > 1.5].any()
-    assert np.array_equal(colour(p, n), cup_material(body, np.zeros(len(body), int), seed)(p, n))
+    assert np.array_equal(colour(p, n), cup_material(body, seed)(p, n))
 
 
 def test_a_pitched_roof_is_tiled_in_courses_a_flat_one_gravel_and_a_parapet_masonry():

@@ -14,26 +14,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from ipm.io.views import linear_from_srgb
 from ipm.uv import pad, texels
 
 TEXTURE_SIZE = 512
 """Texels along a side of each part's baked bitmap."""
 
-GLAZES = ((0.93, 0.89, 0.80), (0.95, 0.95, 0.93), (0.16, 0.30, 0.62), (0.55, 0.64, 0.50),
-          (0.74, 0.42, 0.28), (0.26, 0.26, 0.28), (0.85, 0.68, 0.25))
+GLAZES = np.array([(0.93, 0.89, 0.80), (0.95, 0.95, 0.93), (0.16, 0.30, 0.62), (0.55, 0.64, 0.50),
+                   (0.74, 0.42, 0.28), (0.26, 0.26, 0.28), (0.85, 0.68, 0.25)])
 """Glaze colours (sRGB): cream, white, cobalt, sage, terracotta, charcoal, mustard."""
-RENDERS = ((0.93, 0.91, 0.86), (0.92, 0.86, 0.68), (0.80, 0.80, 0.78), (0.90, 0.74, 0.66))
+RENDERS = np.array([(0.93, 0.91, 0.86), (0.92, 0.86, 0.68), (0.80, 0.80, 0.78), (0.90, 0.74, 0.66)])
 """Rendered walls' colours (sRGB): white, ochre, grey, salmon."""
-BRICKS = ((0.58, 0.27, 0.19), (0.66, 0.42, 0.30), (0.48, 0.30, 0.24))
+BRICKS = np.array([(0.58, 0.27, 0.19), (0.66, 0.42, 0.30), (0.48, 0.30, 0.24)])
 """Brick colours (sRGB): red, buff-red, brown."""
-TILES = ((0.62, 0.29, 0.19), (0.30, 0.32, 0.36), (0.42, 0.26, 0.19))
+TILES = np.array([(0.62, 0.29, 0.19), (0.30, 0.32, 0.36), (0.42, 0.26, 0.19)])
 """Roof tile colours (sRGB): terracotta, slate, brown."""
-
-
-def linear(srgb) -> np.ndarray:
-    """sRGB colours in [0, 1] to linear ones (the renderer's albedo)."""
-    c = np.asarray(srgb, np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def lattice_noise(points: np.ndarray, cell: float, seed: int) -> np.ndarray:
@@ -81,21 +76,20 @@ def cup_design(seed: int) -> dict:
     rng = np.random.default_rng(seed)
     glaze_i = int(rng.integers(len(GLAZES)))
     band_i = (glaze_i + int(rng.integers(1, len(GLAZES)))) % len(GLAZES)
-    glaze, band = linear(GLAZES[glaze_i]), linear(GLAZES[band_i])
+    glaze, band = linear_from_srgb(GLAZES[glaze_i]), linear_from_srgb(GLAZES[band_i])
     if np.abs(glaze - band).sum() < 0.6:  # two near glazes: a dark print
-        band = linear((0.12, 0.16, 0.35))
+        band = linear_from_srgb(np.array((0.12, 0.16, 0.35)))
     top, widths = rng.uniform(0.72, 0.8), rng.uniform(0.025, 0.06, 2)
     star_at, star_h, star_r = rng.uniform(-np.pi, np.pi), rng.uniform(0.35, 0.5), rng.uniform(0.12, 0.18)
-    dots = [linear(GLAZES[(glaze_i + int(j)) % len(GLAZES)]) for j in rng.choice(np.arange(1, len(GLAZES)), 2, False)]
+    dots = [linear_from_srgb(GLAZES[(glaze_i + int(j)) % len(GLAZES)]) for j in rng.choice(np.arange(1, len(GLAZES)), 2, False)]
     return {"glaze": glaze, "band": band, "dots": dots, "top": top, "widths": widths, "star_at": star_at,
             "star_h": star_h, "star_r": star_r}
 
 
-def cup_material(vertices, labels, seed: int):
-    """The colour function of a cup (:func:`cup_design`'s), framed on its body (label 0): the axis
-    through the body's middle, heights over the body's."""
-    v = np.asarray(vertices, np.float64)
-    body = v[np.asarray(labels) == 0] if np.any(np.asarray(labels) == 0) else v
+def cup_material(body, seed: int):
+    """The colour function of a cup (:func:`cup_design`'s), framed on its body's points (n, 3): the
+    axis through the body's middle, heights over the body's."""
+    body = np.asarray(body, np.float64)
     lo, hi = body.min(0), body.max(0)
     centre, height = 0.5 * (lo + hi), max(hi[1] - lo[1], 1e-6)
     d = cup_design(seed)
@@ -144,8 +138,8 @@ def building_materials(vertices, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     ground = float(np.min(np.asarray(vertices)[:, 1]))
     brick = bool(rng.random() < 0.5)
-    wall = linear(BRICKS[int(rng.integers(len(BRICKS)))] if brick else RENDERS[int(rng.integers(len(RENDERS)))])
-    tile = linear(TILES[int(rng.integers(len(TILES)))])
+    wall = linear_from_srgb(BRICKS[int(rng.integers(len(BRICKS)))] if brick else RENDERS[int(rng.integers(len(RENDERS)))])
+    tile = linear_from_srgb(TILES[int(rng.integers(len(TILES)))])
 
     def along(p, n):
         """Each point's horizontal coordinate along its face (the eave's direction)."""
@@ -157,21 +151,23 @@ def building_materials(vertices, seed: int) -> dict:
 
     def courses(p, n, height, length):
         """Each point's course (row) index and its block's index along the course (half-bond)."""
-        row = np.floor((p[:, 1] - ground) / height)
-        col = np.floor(along(p, n) / length + 0.5 * (row % 2))
-        return row, col, (p[:, 1] - ground) / height - row, along(p, n) / length + 0.5 * (row % 2) - col
+        y = (p[:, 1] - ground) / height
+        row = np.floor(y)
+        x = along(p, n) / length + 0.5 * (row % 2)
+        col = np.floor(x)
+        return row, col, y - row, x - col
 
     def walls(p, n):
         if brick:  # 0.25 x 0.075 m, 1 cm mortar
             row, col, fy, fx = courses(p, n, 0.0075, 0.025)
             jitter = lattice_noise(np.stack([row, col, row * 0], 1), 1.0, seed + 2)
             out = wall[None] * (0.8 + 0.4 * jitter)[:, None]
-            out[(fy < 0.13) | (fx < 0.04)] = linear((0.72, 0.70, 0.66))
+            out[(fy < 0.13) | (fx < 0.04)] = linear_from_srgb(np.array((0.72, 0.70, 0.66)))
         else:
             out = wall[None] * (0.93 + 0.14 * lattice_noise(p, 0.04, seed + 2))[:, None]
             out *= (0.96 + 0.08 * lattice_noise(p, 0.004, seed + 3))[:, None]
         plinth = p[:, 1] - ground < 0.05
-        out[plinth] = linear((0.55, 0.55, 0.53)) * (0.9 + 0.2 * lattice_noise(p[plinth], 0.01, seed + 4))[:, None]
+        out[plinth] = linear_from_srgb(np.array((0.55, 0.55, 0.53))) * (0.9 + 0.2 * lattice_noise(p[plinth], 0.01, seed + 4))[:, None]
         return out
 
     def roof(p, n):
@@ -181,20 +177,20 @@ def building_materials(vertices, seed: int) -> dict:
         out[fy < 0.15] *= 0.45  # the shadowed lower edge of the course above
         out[fx < 0.06] *= 0.7
         flat = n[:, 1] > 0.995  # a flat roof (and a parapet's top): gravel
-        out[flat] = linear((0.45, 0.44, 0.42))[None] * (0.7 + 0.6 * lattice_noise(p[flat], 0.004, seed + 5))[:, None]
+        out[flat] = linear_from_srgb(np.array((0.45, 0.44, 0.42)))[None] * (0.7 + 0.6 * lattice_noise(p[flat], 0.004, seed + 5))[:, None]
         upright = n[:, 1] < 0.2  # a parapet's sides: the walls' masonry
         out[upright] = walls(p[upright], n[upright])
         return out
 
     def window(p, n):
-        return linear((0.10, 0.13, 0.17))[None] * (0.8 + 0.4 * lattice_noise(p, 0.03, seed + 7))[:, None]
+        return linear_from_srgb(np.array((0.10, 0.13, 0.17)))[None] * (0.8 + 0.4 * lattice_noise(p, 0.03, seed + 7))[:, None]
 
     def trim(p, n):
-        return np.tile(linear((0.88, 0.88, 0.86)), (len(p), 1))
+        return np.tile(linear_from_srgb(np.array((0.88, 0.88, 0.86))), (len(p), 1))
 
     def door(p, n):
         planks = np.floor(along(p, n) / 0.012)
-        return linear((0.36, 0.21, 0.11))[None] * (0.8 + 0.4 * lattice_noise(
+        return linear_from_srgb(np.array((0.36, 0.21, 0.11)))[None] * (0.8 + 0.4 * lattice_noise(
             np.stack([planks, planks * 0, planks * 0], 1), 1.0, seed + 8))[:, None]
 
     return {"wall": walls, "trim": trim, "window": window, "roof": roof, "door": door}
@@ -211,7 +207,8 @@ def reference_textures(kind: str, vertices, faces, labels, corner_uv, seed: int,
     ("building", ``part_materials`` naming each label's material of :func:`building_materials`)."""
     faces, labels = np.asarray(faces), np.asarray(labels)
     if kind == "cup":
-        colour = cup_material(vertices, _vertex_labels(vertices, faces, labels), seed)
+        body = faces[labels == 0] if np.any(labels == 0) else faces  # label 0: a dish's body
+        colour = cup_material(np.asarray(vertices)[body.ravel()], seed)
         materials = {int(k): colour for k in np.unique(labels)}
     else:
         found = building_materials(vertices, seed)
@@ -219,9 +216,3 @@ def reference_textures(kind: str, vertices, faces, labels, corner_uv, seed: int,
     return {k: bake(vertices, faces[labels == k], np.asarray(corner_uv)[labels == k], colour, size)
             for k, colour in materials.items()}
 
-
-def _vertex_labels(vertices, faces, face_labels) -> np.ndarray:
-    """A label for each vertex (its faces' smallest), for framing a cup on its body's vertices."""
-    out = np.full(len(vertices), np.iinfo(np.int64).max)
-    np.minimum.at(out, np.asarray(faces).ravel(), np.repeat(np.asarray(face_labels), 3))
-    return out
