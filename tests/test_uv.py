@@ -127,3 +127,14 @@ def test_glb_carries_texcoords_split_only_at_seams(tmp_path):
         # split only where charts meet: the seam (a vertex a row) and the rings at the two caps' edges
         rows, ring = {"body": (2 * _LOD[0][0], _LOD[0][1]), "handle": _LOD[0][2:]}[name]
         assert len(part.vertices) == len(np.unique(m.faces[sel])) + rows + 2 * ring
+
+
+@pytest.mark.parametrize("name", ["dishes", "buildings"])
+def test_a_mesh_without_charts_is_the_same_mesh(name):
+    """``uv=False`` (the learned samples' silhouettes) leaves only the texture coordinates out."""
+    gen, xs = _cases(name, 1)
+    for x in xs[-2:]:
+        full, bare = gen.mesh(x, 1), gen.mesh(x, 1, uv=False)
+        assert bare.uv is None and full.uv is not None
+        for field in ("vertices", "faces", "normals", "labels"):
+            assert np.array_equal(getattr(full, field), getattr(bare, field)), field

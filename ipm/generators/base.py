@@ -247,19 +247,21 @@ class Generator:
         solids this object does not have."""
         raise NotImplementedError
 
-    def mesh(self, x: np.ndarray, lod: int = 1) -> Mesh:
-        """Generate the mesh for physical parameters ``x`` (numpy in, numpy out)."""
+    def mesh(self, x: np.ndarray, lod: int = 1, uv: bool = True) -> Mesh:
+        """Generate the mesh for physical parameters ``x`` (numpy in, numpy out); ``uv=False``
+        leaves out the texture coordinates (a mesh only rendered as a silhouette)."""
         import jax.numpy as jnp
 
         x = self.spec.clip(x)
         key = self.topology_key(x)
         topo = self.topology(key, lod)
         verts = self.positions_fn(key, lod)(jnp.asarray(x, jnp.float32))
-        return build_mesh(np.asarray(verts, np.float64), topo, self.part_names)
+        return build_mesh(np.asarray(verts, np.float64), topo, self.part_names, uv)
 
 
-def build_mesh(vertices: np.ndarray, topo: Topology, part_names: tuple[str, ...]) -> Mesh:
-    """A :class:`Mesh` of ``topo`` at ``vertices`` with normals, keeping only the vertices its faces use."""
+def build_mesh(vertices: np.ndarray, topo: Topology, part_names: tuple[str, ...], uv: bool = True) -> Mesh:
+    """A :class:`Mesh` of ``topo`` at ``vertices`` with normals, keeping only the vertices its faces
+    use (``uv=False``: without the topology's texture coordinates, which are not computed)."""
     used = np.unique(topo.faces)
     if len(used) < len(vertices):
         remap = np.full(len(vertices), -1, np.int64)
@@ -267,7 +269,7 @@ def build_mesh(vertices: np.ndarray, topo: Topology, part_names: tuple[str, ...]
         vertices, faces = vertices[used], remap[topo.faces]
     else:
         faces = topo.faces
-    return Mesh(vertices, faces, vertex_normals(vertices, faces), topo.uv, topo.labels, part_names)
+    return Mesh(vertices, faces, vertex_normals(vertices, faces), topo.uv if uv else None, topo.labels, part_names)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

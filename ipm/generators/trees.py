@@ -601,9 +601,10 @@ class Trees(Generator):
         graph = BranchGraph((gp + shift) * scale, gr * scale, ge, gl, n_leaves)
         return mesh, graph
 
-    def mesh(self, x: np.ndarray, lod: int = 1) -> Mesh:
-        """The tree mesh for physical parameters ``x`` (numpy only; no JAX)."""
-        return self.generate(x, lod)[0]
+    def mesh(self, x: np.ndarray, lod: int = 1, uv: bool = True) -> Mesh:
+        """The tree mesh for physical parameters ``x`` (numpy only; no JAX; ``uv=False``: without
+        texture coordinates)."""
+        return self.generate(x, lod, uv)[0]
 
     def branch_graph(self, x: np.ndarray, lod: int = 0) -> BranchGraph:
         """The branch graph alone (its node count does not depend on ``lod``)."""

@@ -82,7 +82,7 @@ def draw_sample(gen, rng: np.random.Generator, res: int = RENDER_RES, elevations
     else:
         lo, hi = np.log(np.tan(np.radians(FOV_RANGE) / 2))
         fov = float(2 * np.arctan(np.exp(rng.uniform(lo, hi))))
-    mesh = gen.mesh(x, sample_lod(gen))
+    mesh = gen.mesh(x, sample_lod(gen), uv=False)  # a silhouette needs no texture charts
     v = scale * mesh.vertices @ yaw_matrix(yaw).T + translation
     lo, hi = v.min(0), v.max(0)
     c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, azimuth, elevation, "hemi", fov)[0]
