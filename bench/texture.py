@@ -1,8 +1,8 @@
 """Benchmark: appearance. Each case is synthesised with colour views under the reference lighting
 (``ipm synth``): the hemi layout's views are the inputs, the held layout's (view 0 the same input
-view, the others between any inputs) the scoring views. Ours reconstructs it from its first 1 and
-6 hemi views and paints its parts from them (``ipm.texture``); instant-NGP-style (``--ngp N``)
-fits its radiance field to N of them. Each result is rendered under the reference lighting (the
+view, the others between any inputs) the scoring views. Ours (the diff path; the GA for
+trees) reconstructs it from its first 1 and 6 hemi views and paints its parts from them
+(``ipm.texture``); instant-NGP-style (``--ngp N``) fits its radiance field to N of them. Each result is rendered under the reference lighting (the
 field as it is) and scored against every held view (``ipm.metrics.texture``: masked PSNR and SSIM
 in sRGB) on the input view, the half of the sphere it sees and the other half.
 
@@ -43,6 +43,7 @@ def run(args: list[str]) -> None:
 def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
     """Fit ``case`` with ``row`` (diff or ngp) from its first ``n_input`` hemi views and score the
     result's appearance on its held views."""
+    from ipm.generators import get_generator
     from ipm.methods import METHODS
     from ipm.metrics.texture import score_result
     from ipm.synth import load_case
@@ -52,8 +53,11 @@ def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
              "--seed", str(seed), "--threads", "1", "--out", str(out), "--quiet"]
     if (out / "timing.json").is_file():
         pass  # a kept work folder's fit
-    elif row == "diff":
-        run(["reconstruct", "--generator", load_case(case)["generator"], *views])
+    elif row == "diff":  # ours: the diff path, or the GA where the generator is not differentiable
+        generator = get_generator(load_case(case)["generator"])
+        path = [] if generator.differentiable else [
+            "--method", "ga", "--prepared", str(METHODS["ga"].shipped_file(generator.name))]
+        run(["reconstruct", "--generator", generator.name, *path, *views])
     else:
         run(["baseline", row, *views])
     info = json.loads((out / ("params.json" if row == "diff" else "info.json")).read_text())

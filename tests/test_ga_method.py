@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import trimesh
+from PIL import Image
 
 from ipm.errors import UserError
 from ipm.io import load_mesh, load_views
@@ -155,12 +156,15 @@ def test_ga_on_a_tree_writes_a_placed_two_part_mesh(tree_run, tree_case):
 
     out, info = tree_run
     assert METHODS["ga"].uses_generator and row_label("ga", 1) == "ours (GA, 1 view)"
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.ply", "params.json", "timing.json",
-                                                     "trace.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.glb", "mesh.ply", "params.json", "textures",
+                                                     "timing.json", "trace.csv"]
+    leaves = np.asarray(Image.open(out / "textures" / "foliage.png"), float).reshape(-1, 3).mean(0)
+    assert leaves[1] > leaves[0] and leaves[1] > leaves[2]  # painted green from the photo
     params = json.loads((out / "params.json").read_text())
     assert params == json.loads(json.dumps(info))
     assert list(params["params"]) == list(get_generator("trees").spec.names)
     assert params["loss"] == "tree" and params["parts"] == ["branch", "foliage"]
+    assert set(params["texture"]["seen"]) == {"branch", "foliage"} and params["texture"]["lighting"] == "reference"
     trace = pd.read_csv(out / "trace.csv")
     assert len(trace) == params["evaluations"] == GA_PROFILES["smoke"].budget
     assert trace["best"].is_monotonic_decreasing and trace["best"].iloc[-1] < trace["loss"].iloc[0]

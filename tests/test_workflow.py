@@ -301,7 +301,9 @@ def test_smoke_run_of_the_whole_dag(tmp_path):
     scores = json.loads((tmp_path / "results/evaluate/diff_1v/cup_1/s0/texture.json").read_text())
     assert scores["inputs"] == 1 and [v["side"] for v in scores["views"]][0] == "input" and len(scores["views"]) == 2
     textures = pd.read_csv(tmp_path / "results/table_texture.csv")
-    assert set(textures["case"]) == {"cup_1", "building_1"} and set(textures["label"]) == {"ours (diff, 1 view)"}
+    assert set(textures["case"]) == {"cup_1", "building_1", "tree_1"}
+    assert set(textures["label"]) == {"ours (diff, 1 view)", "ours (GA, 1 view)"}  # the GA's trees painted too
+    assert (tmp_path / "results/reconstruct/ga_1v/tree_1/s0/textures/foliage.png").is_file()
     assert textures["psnr"].gt(5).all() and textures["ssim"].between(-1, 1).all() and "Textures" in html
     assert (tmp_path / "results/evaluate/diff_1v/cup_1/s1/gallery.png").is_file()
     assert (tmp_path / "results/synth/cup_1/gallery.png").is_file()

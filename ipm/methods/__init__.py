@@ -132,7 +132,8 @@ declare("photo_image", "ours (diff, photo, image only, {views})", "ipm.methods.d
 declare("photo_masked", "ours (diff, photo, image + mask, {views})", "ipm.methods.diff:run_photo",
         **{**_PHOTO, "layout": "photo"})
 declare("ga", "ours (GA, {views})", "ipm.methods.ga:run_ga", layout="hemi", uses_generator=True, length=2,
-        prepare_entry="ipm.methods.ga:collect_generator_statistics", shipped="ipm.methods:prepared/ga_{generator}.json")
+        prepare_entry="ipm.methods.ga:collect_generator_statistics", shipped="ipm.methods:prepared/ga_{generator}.json",
+        appearance="ipm.metrics.texture:render_textured")
 declare("learned", "learned regressor ({views})", "ipm.methods.learned:run_learned", **{**_DIFF, "length": 0},
         prepare_entry="ipm.learned.train:prepare", shipped="ipm.learned:weights/{generator}.json")
 declare("learned_photo", "learned regressor (camera unknown, {views})", "ipm.methods.learned:run_learned_photo",

@@ -18,7 +18,7 @@ from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io.views import Views
 from ipm.methods import check_generator
-from ipm.methods.results import write_result
+from ipm.methods.results import write_painted
 from ipm.problem import Problem
 from ipm.profiles import DiffProfile, get_profile
 from ipm.search.loop import reconstruct
@@ -26,7 +26,6 @@ from ipm.search.moves.camera import CameraSettings
 from ipm.search.objective import Objective
 from ipm.search.starts import start_for
 from ipm.search.trial import scorer
-from ipm.texture import dress
 
 
 def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, prepared=None, **overrides):
@@ -98,10 +97,7 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
     mesh = placed_mesh(problem.world_mesh(z, max(prof.loop.output_lod, problem.generator.min_fit_lod)), place)
     info = {**problem.decode(z), "final_loss": float(trace["best"].iloc[-1]), "evaluations": len(trace),
             "settings": prof.as_dict(), **start_record(trace, prof), **info}
-    textures, record, texture_seconds = dress(problem.generator, mesh, views)
-    info.update(record)
-    timing = {"seconds": seconds + texture_seconds, **({"texture_seconds": texture_seconds} if textures else {})}
-    return write_result(out, mesh, info, timing, trace, textures=textures)
+    return write_painted(out, problem.generator, mesh, info, seconds, trace, views)
 
 
 def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:

@@ -31,7 +31,7 @@ from ipm.losses.impostors import make_target
 from ipm.losses.tree_objective import Objective, family_objective
 from ipm.methods.ga_genome import Genome, anchor
 from ipm.methods.ga_options import GAOptions, get_options, output_lod, uses_tree_loss
-from ipm.methods.results import write_result
+from ipm.methods.results import write_painted
 from ipm.optim.ga import TreeGA
 from ipm.optim.ga_settings import GASettings, get_settings
 from ipm.optim.ga_statistics import GeneStatistics, collect_statistics
@@ -117,7 +117,8 @@ def reconstruct(objective: Objective, settings: GASettings, stats: GeneStatistic
 def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "trees", profile: str = "default",
            seed: int = 0, progress: bool = True, n_input_views: int | None = None,
            prepared: str | Path | None = None, ga_settings: dict | None = None, **options) -> dict:
-    """``ipm reconstruct --method ga``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json.
+    """``ipm reconstruct --method ga``: write mesh.ply, mesh.glb, params.json, trace.csv, timing.json
+    and, where the views have colour images, the parts' textures (``ipm.texture``).
 
     Parameters
     ----------
@@ -162,6 +163,6 @@ def run_ga(views_path: str | Path | Views, out: str | Path, generator: str = "tr
                  "evaluations": int(len(trace)), "loss": "tree" if objective.tree else "silhouette",
                  "statistics": stats_source, "settings": asdict(settings), "options": asdict(opts),
                  "parts": sorted({gen.part_names[k] for k in np.unique(mesh.labels)}), **views.input_frame()})
-    return write_result(out, mesh, info, {
-        "seconds": seconds, "statistics_seconds": t_stats, "search_seconds": objective.seconds,
-        "seconds_per_evaluation": objective.seconds / max(objective.evaluations, 1)}, trace)
+    return write_painted(out, gen, mesh, info, seconds, trace, views, {
+        "statistics_seconds": t_stats, "search_seconds": objective.seconds,
+        "seconds_per_evaluation": objective.seconds / max(objective.evaluations, 1)})

@@ -57,6 +57,21 @@ def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], in
     return info
 
 
+def write_painted(out: str | Path, generator, mesh: Mesh, info: dict, seconds: float, trace: pd.DataFrame,
+                  views=None, timing: dict | None = None) -> dict:
+    """A generator's fit written by :func:`write_result`, first painted from its input ``views``
+    (``ipm.texture.dress``; unpainted without colour images): the texture record in ``info``, the
+    stage's seconds in the fit's ``seconds`` and apart as ``texture_seconds`` (``timing``: more
+    figures for timing.json)."""
+    from ipm.texture import dress
+
+    textures, record, texture_seconds = dress(generator, mesh, views)
+    info = {**info, **record}
+    times = {"seconds": seconds + texture_seconds, **(timing or {}),
+             **({"texture_seconds": texture_seconds} if textures else {})}
+    return write_result(out, mesh, info, times, trace, textures=textures)
+
+
 TEXTURES = "textures"
 """A textured result's folder of part textures (PART.png, sRGB)."""
 CITY_MODEL = "building.city.json"
