@@ -106,8 +106,8 @@ def test_bad_options_give_one_line(tmp_path):
 @pytest.mark.slow
 def test_glbs_pass_the_khronos_validator(tmp_path):
     """Every level of detail of a building and a cup, plain and textured (one baseColorTexture per
-    part, TEXCOORD_0), and a reconstruction's GLB layout (posed): no errors and no warnings from the
-    Khronos glTF validator."""
+    part, TEXCOORD_0), a textured tree, and a reconstruction's GLB layout (posed): no errors and no
+    warnings from the Khronos glTF validator."""
     from ipm.io.views import save_texture
 
     assert (VALIDATOR / "node_modules" / "gltf-validator").is_dir(), "run scripts/setup.sh (npm ci in tests/gltf)"
@@ -126,6 +126,12 @@ def test_glbs_pass_the_khronos_validator(tmp_path):
             files.append(tmp_path / f"{generator}_{lod}_textured.glb")
             generate(generator, params, lod, files[-1], textures=textures)
             assert "textures" in _glb_json(files[-1])
+    tree = get_generator("trees")  # a painted tree at its lowest level (the GA's results wear textures too)
+    textures = tmp_path / "trees_textures"
+    for name in tree.part_names:
+        save_texture(textures / f"{name}.png", rng.integers(0, 256, (16, 16, 3)))
+    files.append(tmp_path / "trees_0_textured.glb")
+    generate("trees", _params_file(tmp_path, "trees", tree.presets["bush"], pose), 0, files[-1], textures=textures)
     res = subprocess.run(["node", str(VALIDATOR / "validate.js"), *map(str, files)], capture_output=True,
                          text=True, timeout=300)
     assert res.returncode == 0, res.stderr
