@@ -23,6 +23,7 @@ import json
 import subprocess
 import sys
 import tempfile
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -32,6 +33,7 @@ DEV = ["cup_1", "cup_2", "cup_d1", "cup_bowl", "cup_ext", "cup_c_mug", "building
        "building_ext", "building_annex", "building_t_house"]
 """The dev cases of the texture stage's choices (docs/decisions.md, "Texture refinement")."""
 IPM = [sys.executable, "-m", "ipm.cli"]
+SCORING = threading.Lock()
 
 
 def run(args: list[str]) -> None:
@@ -62,7 +64,8 @@ def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
         run(["baseline", row, *views])
     info = json.loads((out / ("params.json" if row == "diff" else "info.json")).read_text())
     timing = json.loads((out / "timing.json").read_text())
-    scores = score_result(out, work / case / "held" / "transforms.json", METHODS[row].appearance)
+    with SCORING:  # Dr.Jit's renders are not to be run from two threads of one process at once
+        scores = score_result(out, work / case / "held" / "transforms.json", METHODS[row].appearance)
     return {"case": case, "row": row, "inputs": n_input, "seed": seed, "sides": scores["sides"],
             "seen_texels": info.get("texture", {}).get("seen"), "seconds": timing["seconds"],
             "texture_seconds": timing.get("texture_seconds"), "refine": "default"}
