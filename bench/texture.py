@@ -2,9 +2,10 @@
 (``ipm synth``): the hemi layout's views are the inputs, the held layout's (view 0 the same input
 view, the others between any inputs) the scoring views. Ours (the diff path; the GA for
 trees) reconstructs it from its first 1 and 6 hemi views and paints its parts from them
-(``ipm.texture``); instant-NGP-style (``--ngp N``) fits its radiance field to N of them. Each result is rendered under the reference lighting (the
-field as it is) and scored against every held view (``ipm.metrics.texture``: masked PSNR and SSIM
-in sRGB) on the input view, the half of the sphere it sees and the other half.
+(``ipm.texture``); instant-NGP-style (``--ngp N``) fits its radiance field to N of them. Each
+result is rendered under the reference lighting (the field as it is) and scored against every held
+view (``ipm.metrics.texture``: masked PSNR and SSIM in sRGB) on the input view, the half of the
+sphere it sees and the other half.
 
     .venv/bin/python bench/texture.py [--cases cup_1 cup_2] [--inputs 1 6] [--ngp 16] [--views 16]
         [--seeds 0] [--jobs 2] [--refine none 64:20,256:20] [--repeat 3] [--threads 2]
@@ -43,8 +44,8 @@ def run(args: list[str]) -> None:
 
 
 def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
-    """Fit ``case`` with ``row`` (diff or ngp) from its first ``n_input`` hemi views and score the
-    result's appearance on its held views."""
+    """Fit ``case`` with ``row`` (diff: ours, the GA where the generator is not differentiable; or
+    ngp) from its first ``n_input`` hemi views and score the result's appearance on its held views."""
     from ipm.generators import get_generator
     from ipm.methods import METHODS
     from ipm.metrics.texture import score_result

@@ -261,7 +261,8 @@ class Generator:
 
 def build_mesh(vertices: np.ndarray, topo: Topology, part_names: tuple[str, ...], uv: bool = True) -> Mesh:
     """A :class:`Mesh` of ``topo`` at ``vertices`` with normals, keeping only the vertices its faces
-    use (``uv=False``: without the topology's texture coordinates, which are not computed)."""
+    use (``uv=False``: without the topology's texture coordinates, which a topology that makes
+    them on first read then never makes)."""
     used = np.unique(topo.faces)
     if len(used) < len(vertices):
         remap = np.full(len(vertices), -1, np.int64)
