@@ -5,11 +5,12 @@ photo layout's quality; each segmenter's mask is scored by its IoU with the true
 backdrop, with the means per class and family.
 
     .venv/bin/python bench/segmentation.py [--cases cup_1 building_1] [--res 256] [--spp 128]
-        [--out results/bench/segmentation.json] [--weights SEGMENTER.json]
+        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...]
 
-Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border) and
-``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter or ``--weights``, then
-GrabCut). Tune nothing on test cases: the defaults are the dev cups and buildings.
+Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border),
+``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut) and, for each
+``--weights`` file, ``learned:STEM`` (the same with those weights), all on the same photographs.
+Tune nothing on test cases: the defaults are the dev cups and buildings.
 """
 from __future__ import annotations
 
@@ -31,12 +32,12 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     from ipm.synth import PHOTO_QUALITY, case_fov, ground_truth_mesh, load_case, photographs, view_cameras
 
     spec = load_case(case)
-    v, f, _, uv = ground_truth_mesh(spec)
+    v, f, labels, uv = ground_truth_mesh(spec)
     lo, hi = v.min(0), v.max(0)
     cam, fov = spec.get("camera", {}), case_fov(spec)
     c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
                        cam.get("elevation_deg", 22.0), "photo", fov)
-    linear, masks, _ = photographs(case, spec, v, f, uv, c2w, fov, res, spp, backdrop)
+    linear, masks, _ = photographs(case, spec, v, f, labels, uv, c2w, fov, res, spp, backdrop)
     return jpeg_roundtrip(srgb_bytes(linear[0]), PHOTO_QUALITY), masks[0] > 0.5
 
 
@@ -73,12 +74,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=128)
     ap.add_argument("--out", default="results/bench/segmentation.json")
-    ap.add_argument("--weights", default=None, help="the learned segmenter's weights (default: the shipped ones)")
+    ap.add_argument("--weights", nargs="*", default=[], help="other weights of the learned segmenter to score beside "
+                    "the shipped ones")
     args = ap.parse_args(argv)
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)
-    model = load(args.weights) if args.weights else None
-    segmenters = {"colour": mask_from_image, "learned": lambda img: mask_from_photo(img, model)}
+    segmenters = {"colour": mask_from_image, "learned": mask_from_photo}
+    for path in args.weights:
+        segmenters[f"learned:{Path(path).stem}"] = lambda img, model=load(path): mask_from_photo(img, model)
     rows = []
     for case in tqdm(args.cases, desc="cases"):
         spec = load_case(case)
@@ -97,6 +100,11 @@ def main(argv: list[str] | None = None) -> None:
     write_json(args.out, out)
     for group, by in out["summary"].items():
         print(f"{group:16s}", "  ".join(f"{s} {v['mean']:.3f} (worst {v['worst']:.3f}, n {v['n']})" for s, v in by.items()))
+    for name in list(segmenters)[2:]:  # other weights against the shipped ones, photo by photo
+        d = np.array([r[name] - r["learned"] for r in rows])
+        se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
+        print(f"{name} - learned: paired {d.mean():+.4f} (SE {se:.4f}; {(d > 0.005).sum()} better, "
+              f"{(d < -0.005).sum()} worse by more than 0.005)")
 
 
 if __name__ == "__main__":

@@ -192,7 +192,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
             rgb = render_tree_rgb(v, f, labels, c2w, fov, res, res, spp, spec.get("texture_seed", 0))
             masks = (semantic > 0).astype(np.float32)
         elif layout == "photo":
-            rgb, masks, lens = photographs(case, spec, v, f, uv, c2w, fov, res, spp)
+            rgb, masks, lens = photographs(case, spec, v, f, labels, uv, c2w, fov, res, spp)
         else:
             rgb = render_painted(v, f, labels, uv, reference_appearance(spec, v, f, labels, uv), c2w, fov, res,
                                  res, spp)
@@ -230,16 +230,17 @@ def reference_appearance(case: dict, v, f, labels, uv) -> dict:
     return reference_textures("building", v, f, labels, uv, seed, materials)
 
 
-def photographs(case: str, spec: dict, v, f, uv, c2w: np.ndarray, fov: float, res: int, spp: int,
+def photographs(case: str, spec: dict, v, f, labels, uv, c2w: np.ndarray, fov: float, res: int, spp: int,
                 backdrop: str | None = None):
     """A case's photographs from ``c2w`` with its :func:`photo_setting` (``backdrop`` in place of
-    the setting's where given): linear RGB (n, res, res, 3), the true masks (n, res, res) and the
-    lens (``ipm.io.lens.Lens``; None for a pinhole). Through a lens both are drawn by its pinhole
-    twin on a canvas wide enough for all the lens sees, then distorted as the lens draws them."""
+    the setting's where given; the object in the materials of its reference views,
+    :func:`reference_appearance`, or the setting's plain colour): linear RGB (n, res, res, 3), the
+    true masks (n, res, res) and the lens (``ipm.io.lens.Lens``; None for a pinhole). Through a lens
+    both are drawn by its pinhole twin on a canvas wide enough for all the lens sees, then
+    distorted as the lens draws them."""
     from ipm.io.lens import nerfstudio_lens
     from ipm.render.photo_scene import render_photo
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.render.textured import procedural_texture
 
     shot = photo_setting(case)
     focal = 0.5 * res / np.tan(0.5 * fov)
@@ -248,8 +249,9 @@ def photographs(case: str, spec: dict, v, f, uv, c2w: np.ndarray, fov: float, re
     margin = lens.twin_margin() if lens is not None else 0
     size = res + 2 * margin
     canvas_fov = 2.0 * float(np.arctan(0.5 * size / focal))
-    rgb = render_photo(v, f, uv, c2w, canvas_fov, size, size, backdrop or shot["backdrop"], shot["seed"],
-                       procedural_texture(spec.get("texture_seed", 0)), shot["plain"], spp)
+    textures = reference_appearance(spec, v, f, labels, uv) if shot["plain"] is None else None
+    rgb = render_photo(v, f, uv, c2w, canvas_fov, size, size, backdrop or shot["backdrop"], shot["seed"], textures,
+                       shot["plain"], spp, labels)
     masks = SilhouetteRenderer(c2w, canvas_fov, size, size, spp=16).render(v, f)
     if lens is None:
         return rgb, masks, None

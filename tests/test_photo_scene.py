@@ -56,6 +56,28 @@ def test_the_object_casts_its_shadow_on_the_ground(mitsuba_cpu, backdrop):
     assert shade < 0.75, (backdrop, shade)
 
 
+def test_each_part_wears_its_own_texture(mitsuba_cpu):
+    """A photographed box whose lower and upper halves are two parts, one red and one blue: the
+    pixels of each half show its part's colour (the photo layout dresses a case as its reference
+    views are dressed, a texture per part); textures per part without labels are refused."""
+    from ipm.render.cameras import orbit_camera, project
+    from ipm.render.photo_scene import render_photo
+
+    v, f, uv = _box()
+    labels = (v[f].mean(1)[:, 1] > 0.4).astype(int)  # the top face and the sides' upper triangles
+    red, blue = np.full((4, 4, 3), (0.8, 0.05, 0.05)), np.full((4, 4, 3), (0.05, 0.05, 0.8))
+    c2w = orbit_camera(np.array([0.0, 0.4, 0.0]), 3.0, 20.0, 25.0)[None]
+    img = render_photo(v, f, uv, c2w, 0.7, 48, 48, "gradient", seed=3, texture={0: red, 1: blue}, spp=16,
+                       labels=labels)[0]
+    centres = v[f].mean(1)
+    for part, channel in ((0, 0), (1, 2)):
+        x, y = project(centres[labels == part], c2w[0], 0.7, 48, 48).mean(0).astype(int)
+        pixel = img[y, x]
+        assert pixel[channel] > 2 * pixel[2 - channel], (part, pixel)
+    with pytest.raises(ValueError, match="labels"):
+        render_photo(v, f, uv, c2w, 0.7, 16, 16, "gradient", texture={0: red}, spp=4)
+
+
 def test_unknown_backdrops_are_refused():
     from ipm.render.photo_scene import ground_texture
 

@@ -2,8 +2,8 @@
 and sunlight, casting its shadow there, in front of one of :data:`BACKDROPS`.
 
 The scene: a sky (an equirectangular gradient, zenith blue to a pale horizon) and a sun (a
-directional light from a seeded direction 35-65 degrees high) light the object, which carries its
-case's texture or a plain colour; the ground is a large plane at the object's lowest point, with
+directional light from a seeded direction 35-65 degrees high) light the object, which wears its
+case's materials (each part its own texture) or a plain colour; the ground is a large plane at the object's lowest point, with
 the backdrop's material; ``table`` adds a wall behind the object. Path traced (paths of up to four
 segments), so the object's contact shadow and its shading are in the image; the caller writes it
 as JPEG.
@@ -76,18 +76,19 @@ def _bitmap(texture: np.ndarray, scale: float = 1.0):
             "wrap_mode": "repeat", "raw": True, "to_uv": mi.ScalarTransform4f().scale([scale, scale, 1])}
 
 
-def scene_dict(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, height: int,
-               backdrop: str, seed: int, texture: np.ndarray | None, plain: tuple | None = None) -> dict:
-    """The photo's Mitsuba scene (one sensor per camera of ``c2w``): the object with ``texture``
-    (or the ``plain`` colour) on the backdrop's ground, lit by the sky and a seeded sun."""
+def _object_shapes(vertices, faces, uv, texture, plain, labels) -> dict:
+    """The object's Mitsuba meshes: one in the ``plain`` colour or wearing one ``texture`` image
+    on every face, or (``texture`` a dict, with ``labels``) each part wearing its own, as the
+    reference views' parts do (``ipm.render.textured.painted_shapes``)."""
     import mitsuba as mi
 
-    from ipm.render.textured import unweld
+    from ipm.render.textured import painted_shapes, unweld
 
-    rng = np.random.default_rng(seed)
+    if isinstance(texture, dict) and plain is None:
+        if labels is None:
+            raise ValueError("textures per part need the faces' part labels")
+        return painted_shapes(vertices, faces, labels, uv, texture)
     v, f, t = unweld(np.asarray(vertices), np.asarray(faces), np.asarray(uv))
-    lo, hi = v.min(0), v.max(0)
-    centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
     reflectance = {"type": "rgb", "value": list(plain)} if plain is not None else _bitmap(texture)
     props = mi.Properties()
     props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": reflectance})
@@ -97,10 +98,25 @@ def scene_dict(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, h
     mp["faces"] = mi.UInt32(f.astype(np.uint32).ravel())
     mp["vertex_texcoords"] = mi.Float(t.astype(np.float32).ravel())
     mp.update()
+    return {"object": mesh}
+
+
+def scene_dict(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, height: int,
+               backdrop: str, seed: int, texture: np.ndarray | dict | None, plain: tuple | None = None,
+               labels=None) -> dict:
+    """The photo's Mitsuba scene (one sensor per camera of ``c2w``): the object with ``texture``
+    (one image, or per part label a dict of them with the faces' ``labels``) or the ``plain``
+    colour on the backdrop's ground, lit by the sky and a seeded sun."""
+    import mitsuba as mi
+
+    rng = np.random.default_rng(seed)
+    lo, hi = np.asarray(vertices).min(0), np.asarray(vertices).max(0)
+    centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
     T = mi.ScalarTransform4f
     ground_size = 60 * radius
     sky_scale, sun = (0.8, 1.0) if backdrop != "random" else (rng.uniform(0.4, 1.6), rng.uniform(0.2, 1.5))
-    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 4}, "object": mesh,
+    scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 4},
+             **_object_shapes(vertices, faces, uv, texture, plain, labels),
              "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky()), "scale": sky_scale},
              "sun": {"type": "directional", "direction": sun_direction(rng).tolist(),
                      "irradiance": {"type": "rgb", "value": (sun * np.array([3.0, 2.85, 2.6])).tolist()}},
@@ -125,14 +141,14 @@ def scene_dict(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, h
 
 
 def render_photo(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, height: int,
-                 backdrop: str = "table", seed: int = 0, texture: np.ndarray | None = None,
-                 plain: tuple | None = None, spp: int = 64) -> np.ndarray:
+                 backdrop: str = "table", seed: int = 0, texture: np.ndarray | dict | None = None,
+                 plain: tuple | None = None, spp: int = 64, labels=None) -> np.ndarray:
     """Linear RGB photographs (n, height, width, 3) of the object from each camera of ``c2w``
     (:func:`scene_dict`), exposed so the lit ground and sky sit below white."""
     import mitsuba as mi
 
     scene = mi.load_dict(scene_dict(vertices, faces, uv, c2w, fov_x, width, height, backdrop, seed, texture,
-                                    plain))
+                                    plain, labels))
     images = np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=(seed * 1000 + i) % 2**32))
                        for i in range(len(c2w))])
     return np.clip(images * 0.8 / max(float(np.quantile(images, 0.99)), 1e-6), 0.0, 1.0)
