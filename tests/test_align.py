@@ -32,6 +32,18 @@ def test_known_similarity_is_undone():
     assert np.allclose(found @ applied, np.eye(4), atol=0.03)  # the recovered transform inverts the applied one
 
 
+def test_a_result_placed_far_off_is_still_aligned():
+    """A reconstruction of the right shape put ten radii away and three times too large (as a
+    photo's wrong camera places one) aligns onto the reference: the search reaches the box match."""
+    ref = asymmetric()
+    radius = bounding_sphere(ref)[1]
+    applied = similarity_matrix(math.radians(25.0), np.array([8.0, 0.0, -6.0]) * radius, 3.0, base_centre(ref))
+    out = shape_iou(ref, ref.copy().apply_transform(applied), **FAST)
+    assert out["world_iou"] < 0.05
+    assert out["shape_iou"] > 0.95
+    assert abs(out["align_scale"] - 1 / 3.0) < 0.02
+
+
 def test_identical_mesh_keeps_identity():
     ref = asymmetric()
     out = shape_iou(ref, ref.copy(), **FAST)

@@ -27,7 +27,8 @@ from .silhouette import (FOV_DEG, bounding_sphere, camera_rays, check_reference,
                          open3d, raycast_masks, raycasting_scene, view_ious)
 
 SCALE_RANGE = 2.0  # the scale is searched within [min(1, s0) / 2, 2 max(1, s0)], s0 the bounding-box match
-SHIFT_LIMIT = 2.0  # |t| is kept within 2 reference radii (the cameras see about 2.9 r across)
+SHIFT_LIMIT = 2.0  # |t| is kept within 2 reference radii (the cameras see about 2.9 r across) of the origin, or
+# of the box match where that lies further (a result placed far off the reference, as a photo's wrong camera puts it)
 
 
 def similarity_matrix(yaw: float, translation, scale: float, pivot) -> np.ndarray:
@@ -128,14 +129,15 @@ def align_similarity(reference: trimesh.Trimesh, mesh: trimesh.Trimesh, n_views:
     masks = _MovedMeshMasks(mesh, cams, res, pivot, fov_deg)
     s0, t0 = _box_match(reference, mesh, pivot)
     log_lo, log_hi = math.log(min(1.0, s0) / SCALE_RANGE), math.log(max(1.0, s0) * SCALE_RANGE)
+    centre_t = t0 / radius if np.linalg.norm(t0) > SHIFT_LIMIT * radius else np.zeros(3)
     cache: dict[tuple, float] = {}
 
     def clip(p):
         p = np.asarray(p, float).copy()
         p[0] = (p[0] + math.pi) % (2.0 * math.pi) - math.pi
-        shift = np.linalg.norm(p[1:4])
+        shift = np.linalg.norm(p[1:4] - centre_t)
         if shift > SHIFT_LIMIT:
-            p[1:4] *= SHIFT_LIMIT / shift
+            p[1:4] = centre_t + (p[1:4] - centre_t) * (SHIFT_LIMIT / shift)
         p[4] = min(max(p[4], log_lo), log_hi)
         return p
 
