@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> None:
     write_json(args.out, out)
     for group, by in out["summary"].items():
         print(f"{group:16s}", "  ".join(f"{s} {v['mean']:.3f} (worst {v['worst']:.3f}, n {v['n']})" for s, v in by.items()))
-    for name in list(segmenters)[2:]:  # other weights against the shipped ones, photo by photo
+    for name in (n for n in segmenters if n.startswith("learned:")):  # other weights against the shipped ones
         d = np.array([r[name] - r["learned"] for r in rows])
         se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
         print(f"{name} - learned: paired {d.mean():+.4f} (SE {se:.4f}; {(d > 0.005).sum()} better, "

@@ -3,10 +3,10 @@ and sunlight, casting its shadow there, in front of one of :data:`BACKDROPS`.
 
 The scene: a sky (an equirectangular gradient, zenith blue to a pale horizon) and a sun (a
 directional light from a seeded direction 35-65 degrees high) light the object, which wears its
-case's materials (each part its own texture) or a plain colour; the ground is a large plane at the object's lowest point, with
-the backdrop's material; ``table`` adds a wall behind the object. Path traced (paths of up to four
-segments), so the object's contact shadow and its shading are in the image; the caller writes it
-as JPEG.
+case's materials (each part its own texture) or a plain colour; the ground is a large plane at the
+object's lowest point, with the backdrop's material; ``table`` adds a wall behind the object. Path
+traced (paths of up to four segments), so the object's contact shadow and its shading are in the
+image; the caller writes it as JPEG.
 """
 from __future__ import annotations
 
@@ -110,7 +110,8 @@ def scene_dict(vertices, faces, uv, c2w: np.ndarray, fov_x: float, width: int, h
     import mitsuba as mi
 
     rng = np.random.default_rng(seed)
-    lo, hi = np.asarray(vertices).min(0), np.asarray(vertices).max(0)
+    points = np.asarray(vertices)
+    lo, hi = points.min(0), points.max(0)
     centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
     T = mi.ScalarTransform4f
     ground_size = 60 * radius
