@@ -120,3 +120,20 @@ def test_smoothness_prior_gradient_matches_finite_differences(rng):
         fd = (problem.regulariser(z + e, 0.33)[0] - problem.regulariser(z - e, 0.33)[0]) / 2e-6
         assert grad[i] == pytest.approx(fd, rel=1e-4, abs=1e-9)
     assert grad[9] == 0.0  # y_scale is not in a smoothed sequence
+
+
+def test_dish_inner_wall_stays_inside_where_the_profile_lies_flat():
+    """A goblet's foot (the radius falling fast above the base): at every height the inner wall
+    lies inside the outer one, so the body does not cross itself."""
+    from ipm.generators.dishes import _LOD
+
+    gen = get_generator("dishes")
+    x = gen.presets["bowl"].copy()
+    x[:9] = [2.7, 0.5, 0.5, 0.3, 0.5, 2.1, 3.1, 3.3, 3.0]
+    x[gen.spec.index["y_scale"]] = 1.06
+    for lod in gen.lods:
+        n_p, n_r = _LOD[lod][:2]
+        rows = np.asarray(gen.mesh(x, lod).vertices)[1:1 + 2 * n_p * n_r].reshape(2 * n_p, n_r, 3)
+        radius, height = np.hypot(rows[..., 0], rows[..., 2]).mean(1), rows[:, 0, 1]
+        outer = np.interp(height[n_p:], height[:n_p], radius[:n_p])
+        assert np.all(radius[n_p:] < outer - 1e-3), lod

@@ -2,7 +2,8 @@
 "Generators").
 
 1. a profile spline from 9 radial offsets at equally spaced heights;
-2. a closed profile: outer wall, flat rim, inner wall (constant thickness), inner and outer bottom;
+2. a closed profile: outer wall, flat rim, inner wall (at every height the wall thickness inside the
+   outer one, so the two never cross where the profile lies flat), inner and outer bottom;
 3. revolved about +y into the body (a closed surface between two poles);
 4. optionally a handle: a C-shaped spline of 20 control points around a centre at
    ``handle_height`` on the body surface (distances ``handle_radius_k``), swept by a tube whose
@@ -26,6 +27,11 @@ from ipm.uv import sweep_atlas, sweep_uv
 N_PROFILE, N_HANDLE = 9, 20
 WALL = 0.03
 """Wall thickness of the body (object units): inner radius = r - WALL * r / (r + WALL) > 0."""
+
+
+def _inner(r):
+    """The inner wall's radius inside an outer radius ``r`` at the same height (numpy or JAX)."""
+    return r - WALL * r / (r + WALL)
 BOTTOM = 0.03
 """Thickness of the bottom (object units), at most a quarter of the height."""
 PROFILE_UNIT = 0.1
@@ -71,7 +77,7 @@ def _preset_means(presets: dict) -> dict:
     rows = []
     for x in presets.values():
         r = np.maximum(w @ (PROFILE_UNIT * x[:N_PROFILE]), 0.005)
-        r_in = r - WALL * r / (r + WALL)
+        r_in = _inner(r)
         h = x[N_PROFILE]
         rows.append({"radius": r.mean(), "height": h, "rim": r[-1] - r_in[-1], "bottom": min(BOTTOM, 0.25 * h),
                      "base_out": r[0], "base_in": r_in[0]})
@@ -209,10 +215,10 @@ class Dishes(Generator):
             height = x[ix["y_scale"]]
             ctrl = PROFILE_UNIT * x[:N_PROFILE]
             r_out = jnp.maximum(w_profile @ ctrl, 0.005)
-            r_in = r_out - WALL * r_out / (r_out + WALL)
             bottom = jnp.minimum(BOTTOM, 0.25 * height)
             y_out = t * height
             y_in = bottom + t * (height - bottom)
+            r_in = _inner(jnp.maximum(jax.vmap(lambda yy: catmull_rom_at(ctrl, yy / height))(y_in), 0.005))
             radius = jnp.concatenate([r_out, r_in[::-1]])
             ys = jnp.concatenate([y_out, y_in[::-1]])
             parts = [jnp.zeros((1, 3)), revolve(radius, ys, n_r), jnp.stack([0.0, bottom, 0.0])[None]]
