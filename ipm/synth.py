@@ -22,7 +22,7 @@ from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, save_ply, write_json
 from ipm.io.views import save_mask, save_rgb, write_views
-from datasets_synthetic import city_recipes, more_recipes  # noqa: F401  (register their recipes in RECIPES)
+from datasets_synthetic import city_recipes, more_recipes, tree_recipes  # noqa: F401  (register their recipes in RECIPES)
 from datasets_synthetic.recipes import RECIPES
 from ipm.render.cameras import is_fov_deg, orbit_camera
 from ipm.uv import corners_from_vertices
