@@ -27,15 +27,16 @@ from ipm.uv import sweep_atlas, sweep_uv
 N_PROFILE, N_HANDLE = 9, 20
 WALL = 0.03
 """Wall thickness of the body (object units): inner radius = r - WALL * r / (r + WALL) > 0."""
+BOTTOM = 0.03
+"""Thickness of the bottom (object units), at most a quarter of the height."""
+PROFILE_UNIT = 0.1
+"""Object units per profile offset unit (offsets 0.1..8 give radii 0.01..0.8)."""
 
 
 def _inner(r):
     """The inner wall's radius inside an outer radius ``r`` at the same height (numpy or JAX)."""
     return r - WALL * r / (r + WALL)
-BOTTOM = 0.03
-"""Thickness of the bottom (object units), at most a quarter of the height."""
-PROFILE_UNIT = 0.1
-"""Object units per profile offset unit (offsets 0.1..8 give radii 0.01..0.8)."""
+
 
 _SPEC_ROWS = (
     [(f"profile_{i}", 0.1, 8.0, False, 4.0) for i in range(N_PROFILE)]
@@ -215,10 +216,11 @@ class Dishes(Generator):
             height = x[ix["y_scale"]]
             ctrl = PROFILE_UNIT * x[:N_PROFILE]
             r_out = jnp.maximum(w_profile @ ctrl, 0.005)
+            radius_at = jax.vmap(lambda yy: jnp.maximum(catmull_rom_at(ctrl, yy / height), 0.005))  # outer, at heights
             bottom = jnp.minimum(BOTTOM, 0.25 * height)
             y_out = t * height
             y_in = bottom + t * (height - bottom)
-            r_in = _inner(jnp.maximum(jax.vmap(lambda yy: catmull_rom_at(ctrl, yy / height))(y_in), 0.005))
+            r_in = _inner(radius_at(y_in))
             radius = jnp.concatenate([r_out, r_in[::-1]])
             ys = jnp.concatenate([y_out, y_in[::-1]])
             parts = [jnp.zeros((1, 3)), revolve(radius, ys, n_r), jnp.stack([0.0, bottom, 0.0])[None]]
@@ -228,8 +230,7 @@ class Dishes(Generator):
                 rho = x[i_h:i_h + N_HANDLE] * height
                 centre_y = x[ix["handle_height"]] * height
                 cy = centre_y + rho * jnp.sin(phi)
-                r_body = jax.vmap(lambda yy: catmull_rom_at(ctrl, yy / height))(cy)
-                cx = jnp.maximum(r_body, 0.005) - 0.5 * WALL + rho * jnp.cos(phi)
+                cx = radius_at(cy) - 0.5 * WALL + rho * jnp.cos(phi)
                 path_ctrl = jnp.stack([cx, cy, jnp.zeros_like(cx)], 1)
                 path = w_handle @ path_ctrl
                 tube_r = x[ix["handle_thickness"]] * (w_handle @ x[i_c:i_c + N_HANDLE])
