@@ -194,9 +194,16 @@ class Problem:
         return self.clip(out)
 
     def clip(self, z: np.ndarray) -> np.ndarray:
-        """Project ``z`` into bounds; yaw is wrapped into [0, 2 pi)."""
+        """Project ``z`` into bounds and its shape onto the generator's feasible objects
+        (``Generator.feasible``); yaw is wrapped into [0, 2 pi)."""
         z = np.clip(np.asarray(z, np.float64), self.lower, self.upper)
         z[self.n_shape] = np.mod(z[self.n_shape], 2 * np.pi)
+        spec, n = self.spec, self.n_shape
+        x = spec.lower + z[:n] * (spec.upper - spec.lower)
+        held = self.generator.feasible(x)
+        if held is not x:  # only the entries it moved, so a feasible z comes back to the bit
+            moved = held != x
+            z[:n][moved] = spec.to_unit(held)[moved]
         return z
 
     def constants(self, dtype=np.float32) -> np.ndarray:

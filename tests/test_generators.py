@@ -122,6 +122,44 @@ def test_smoothness_prior_gradient_matches_finite_differences(rng):
     assert grad[9] == 0.0  # y_scale is not in a smoothed sequence
 
 
+def test_dish_handle_held_on_the_wall_by_the_search():
+    """The dishes' feasible objects: the sampler's and the presets' handles are left as they are; a
+    handle reaching below the base or above the rim is drawn in until the tube lies within the
+    body's height (to the spline's overshoot between control points), and the search's projection
+    moves only those entries."""
+    from ipm.generators.dishes import N_HANDLE
+    from ipm.problem import Problem
+
+    gen = get_generator("dishes")
+    ix, rng = gen.spec.index, np.random.default_rng(0)
+    i_h = ix["handle_radius_0"]
+    for _ in range(200):
+        x = gen.sample(rng, handle=True)
+        assert gen.feasible(x) is x
+    assert all(gen.feasible(x) is x for x in gen.presets.values())
+    moved = 0
+    for _ in range(40):
+        x = gen.spec.from_unit(rng.random(len(gen.spec)))
+        x[ix["has_handle"]] = 1.0
+        held = gen.feasible(x)
+        assert np.array_equal(np.delete(held, np.s_[i_h:i_h + N_HANDLE]), np.delete(x, np.s_[i_h:i_h + N_HANDLE]))
+        assert np.all(held[i_h:i_h + N_HANDLE] <= x[i_h:i_h + N_HANDLE])
+        if np.any(held[i_h:i_h + N_HANDLE] <= gen.spec.lower[i_h:i_h + N_HANDLE]):
+            continue  # too low a body for any handle: the distances' lower bound wins
+        moved += held is not x
+        height, mesh = held[ix["y_scale"]], gen.mesh(held, 1, uv=False)
+        y = mesh.vertices[np.unique(mesh.faces[mesh.labels == 1])][:, 1]
+        assert y.min() > -0.04 * height and y.max() < 1.04 * height
+    assert moved > 10
+    problem = Problem(gen, np.zeros(3), 1.0)
+    x = gen.presets["mug"].copy()
+    x[ix["handle_height"]], x[i_h:i_h + N_HANDLE] = 0.3, 0.5
+    z = np.concatenate([gen.spec.to_unit(x), np.zeros(problem.dim - problem.n_shape)])
+    held = problem.clip(z)
+    assert np.array_equal(np.delete(held, np.s_[i_h:i_h + N_HANDLE]), np.delete(z, np.s_[i_h:i_h + N_HANDLE]))
+    assert held[i_h] < z[i_h] and np.array_equal(problem.clip(held), held)
+
+
 def test_dish_inner_wall_stays_inside_where_the_profile_lies_flat():
     """A goblet's foot (the radius falling fast above the base): at every height the inner wall
     lies inside the outer one, so the body does not cross itself."""

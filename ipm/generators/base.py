@@ -190,6 +190,12 @@ class Generator:
         in-family cases (``ipm.cases``). Default: uniform in the unit cube."""
         return self.spec.from_unit(rng.random(len(self.spec)))
 
+    def feasible(self, x: np.ndarray) -> np.ndarray:
+        """The nearest object ``x`` (physical values in bounds) that the generator builds as intended,
+        ``x`` itself where it is one; the search projects every candidate onto it
+        (``ipm.problem.Problem.clip``). Default: every ``x`` in bounds."""
+        return x
+
     def active(self, x: np.ndarray) -> np.ndarray:
         """Mask (n,) of the parameters that shape the object ``x``; the others are inert for it
         (a handle's parameters when it has none). Default: all of them."""

@@ -25,6 +25,8 @@ from ipm.generators.geometry import (catmull_rom_at, catmull_rom_matrix, closed_
 from ipm.uv import sweep_atlas, sweep_uv
 
 N_PROFILE, N_HANDLE = 9, 20
+_HANDLE_SIN = np.sin(np.pi * (np.linspace(0.0, 1.0, N_HANDLE) - 0.5))
+"""Height of each handle control point above the handle's centre, per unit of its distance."""
 WALL = 0.03
 """Wall thickness of the body (object units): inner radius = r - WALL * r / (r + WALL) > 0."""
 BOTTOM = 0.03
@@ -134,6 +136,25 @@ class Dishes(Generator):
         if not self.topology_key(x)[0]:
             on[self.spec.index["handle_thickness"]:] = False
         return on
+
+    def feasible(self, x):
+        """A handle hangs on the wall between the base and the rim (every sampled and every real
+        cup's does; one reaching below the base would stand the cup on it): each control point's
+        distance from the handle's centre is held so that its point of the C, with the tube round
+        it, lies within the body's height (the distances' lower bound wins where nothing fits)."""
+        ix = self.spec.index
+        if not self.topology_key(x)[0]:
+            return x
+        i_h, i_c = ix["handle_radius_0"], ix["handle_thick_coef_0"]
+        height, rho = x[ix["y_scale"]], x[i_h:i_h + N_HANDLE]
+        centre, tube = x[ix["handle_height"]] * height, x[ix["handle_thickness"]] * x[i_c:i_c + N_HANDLE]
+        room = np.where(_HANDLE_SIN < 0, centre - tube, height - centre - tube)
+        reach = np.maximum(room / (height * np.abs(_HANDLE_SIN)), self.spec.lower[i_h:i_h + N_HANDLE])
+        if np.all(rho <= reach):
+            return x
+        out = np.array(x, np.float64)
+        out[i_h:i_h + N_HANDLE] = np.minimum(rho, reach)
+        return out
 
     def yaw_symmetric(self, x):
         """A body of revolution without a handle."""
