@@ -199,7 +199,7 @@ class Problem:
         z = np.clip(np.asarray(z, np.float64), self.lower, self.upper)
         z[self.n_shape] = np.mod(z[self.n_shape], 2 * np.pi)
         spec, n = self.spec, self.n_shape
-        x = spec.lower + z[:n] * (spec.upper - spec.lower)
+        x = spec.from_unit(z[:n])
         held = self.generator.feasible(x)
         if held is not x:  # only the entries it moved, so a feasible z comes back to the bit
             moved = held != x
