@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipm.errors import UserError
+from ipm.render.raycast import mesh_scene
 from ipm.uv import Texels, pad, texels
 
 TEXTURE_RES = 256
@@ -64,17 +65,6 @@ def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> 
     return np.isfinite(t) & (t >= dist - tolerance)
 
 
-def _mesh_scene(vertices: np.ndarray, faces: np.ndarray):
-    """A Mitsuba scene of the fitted mesh alone, for ray casts."""
-    import mitsuba as mi
-
-    from ipm.render.textured import set_mesh_buffers
-
-    mesh = mi.Mesh("fit", len(vertices), len(faces))
-    set_mesh_buffers(mesh, vertices, faces)
-    return mi.load_dict({"type": "scene", "fit": mesh})
-
-
 def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.ndarray, c2w: np.ndarray,
             fov_x: float, res: int = TEXTURE_RES, scene=None) -> tuple[np.ndarray, np.ndarray, Texels]:
     """Part ``part``'s texture (res, res, 3) linear albedo from the photos (n, H, W, 3) linear,
@@ -84,7 +74,7 @@ def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.
 
     sel = mesh.labels == part
     tx = texels(mesh.vertices, mesh.faces[sel], mesh.uv[sel], res)
-    scene = _mesh_scene(mesh.vertices, mesh.faces) if scene is None else scene
+    scene = mesh_scene(mesh.vertices, mesh.faces) if scene is None else scene
     size = float(np.linalg.norm(np.ptp(mesh.vertices, 0)))
     total, weight = np.zeros((len(tx.points), 3)), np.zeros(len(tx.points))
     h, w = photos.shape[1:3]
@@ -165,7 +155,7 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
         shading = np.ones((n, h, w))
     else:
         raise UserError(f"unknown lighting {lighting!r} (known: reference, or none)")
-    scene = _mesh_scene(mesh.vertices, mesh.faces)
+    scene = mesh_scene(mesh.vertices, mesh.faces)
     textures, seen_share = {}, {}
     for part in np.unique(mesh.labels):
         part = int(part)

@@ -141,3 +141,65 @@ def test_the_start_of_the_search_is_pluggable(mug_view):
     assert starts == [get_profile("smoke").memetic.population]
     memetic = trace[trace["stage"] == "memetic"]
     assert "guess" in set(memetic["origin"]) and not {"mug", "random"} & set(memetic["origin"])
+
+
+def _mug_facing(problem, yaw_towards: float, cam: np.ndarray) -> np.ndarray:
+    """The mug preset with its handle turned ``yaw_towards`` radians from the vertical plane across
+    the line of sight, towards the camera."""
+    gen = problem.generator
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.0)
+    to_cam = cam[:3, 3] - problem.to_world(z)(np.zeros((1, 3)))[0]
+    z[problem.n_shape] = -np.arctan2(to_cam[2], to_cam[0]) + yaw_towards  # R_y(yaw) e_x at azimuth -yaw
+    return problem.clip(z)
+
+
+def test_the_mirror_turns_the_handle_through_the_plane_across_the_line_of_sight():
+    from ipm.search.moves.handle import mirrored_yaw
+
+    problem = Problem(Dishes(), np.zeros(3), 1.0)
+    cam = orbit_camera([0, 0.3, 0], 3.0, 40.0, 15.0)
+    for turn in (0.3, 1.2, -0.7):
+        z = _mug_facing(problem, turn, cam)
+        alt = mirrored_yaw(problem, z, cam)
+        x = [problem.to_world(w)(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])) for w in (z, alt)]
+        (o, h), (_, h2) = x
+        v = cam[:3, 3] - o
+        v[1] = 0.0
+        v /= np.linalg.norm(v)
+        assert np.isclose((h2 - o) @ v, -((h - o) @ v), atol=1e-5)  # towards the camera <-> away
+        side = np.cross(v, [0.0, 1.0, 0.0])
+        assert np.isclose((h2 - o) @ side, (h - o) @ side, atol=1e-5)  # the outline's side kept
+        assert np.allclose(alt[: problem.n_shape], z[: problem.n_shape])
+        back = mirrored_yaw(problem, alt, cam)[problem.n_shape]
+        assert np.isclose(np.angle(np.exp(1j * (back - z[problem.n_shape]))), 0.0, atol=1e-6)
+
+
+def test_the_image_edges_tell_a_handle_in_front_from_one_behind(mitsuba_cpu):
+    """Shaded images of a mug whose handle is turned towards the camera (drawn over the body) or
+    away from it (hidden): the image's edges score the true side above its mirror, whose outline is
+    the same, where the handle shows over the body, and never below it; without a handle a mesh
+    draws no edge."""
+    from ipm.render.raycast import mesh_scene, pixel_hits
+    from ipm.search.moves.handle import edge_maps, edge_strengths, image_gradient, mirrored_yaw
+
+    problem = Problem(Dishes(), np.zeros(3), 1.0)
+    cam = orbit_camera([0, 0.4, 0], 3.0, 0.0, 10.0)
+    res, fov = 96, 0.7
+    views = Views(fov, res, res, cam[None])
+    light = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
+    for turn, shows in ((0.6, True), (-0.4, True), (np.pi - 1.1, False)):
+        truth = _mug_facing(problem, turn, cam)
+        mesh = problem.world_mesh(truth, 1)
+        t, face = pixel_hits(mesh_scene(mesh.vertices, mesh.faces), cam, fov, res, res)
+        e1, e2 = (mesh.vertices[mesh.faces[:, k]] - mesh.vertices[mesh.faces[:, 0]] for k in (1, 2))
+        normal = np.cross(e1, e2)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-12
+        shade = np.where(face >= 0, 0.2 + 0.7 * np.abs(normal[np.maximum(face, 0)] @ light), 0.0)
+        gradient = image_gradient(np.repeat(shade[..., None], 3, axis=2))
+        maps = [edge_maps(problem, z, 1, views) for z in (truth, mirrored_yaw(problem, truth, cam))]
+        assert maps[0][2].any()
+        kept, other = edge_strengths(gradient, maps)
+        assert (kept > other) if shows else (kept == other), turn
+    plain = problem.clip(np.where(np.arange(len(truth)) == problem.spec.index["has_handle"], 0.0, truth))
+    edges, _, part, _ = edge_maps(problem, plain, 1, views)
+    assert not part.any() and not edges.any()

@@ -114,8 +114,10 @@ class Dishes(Generator):
     lods = tuple(_LOD)
     simplest = {"has_handle": 0.0}
     """Discrete values to prefer when the views cannot tell (``ipm.search.moves.simplify``)."""
-    moves = ("polish", "simplify")
-    """Polish, and the Occam step that drops a handle the views do not show (``ipm.search.moves``)."""
+    moves = ("polish", "handle side", "simplify")
+    """Polish, the handle's side by the colour image and the Occam step that drops a handle the views
+    do not show (``ipm.search.moves``)."""
+    sided_part = "handle"
     smooth_groups = ((0, N_PROFILE, 0.05, 2), (13, 13 + N_HANDLE, 1.0, 2), (13 + N_HANDLE, 13 + 2 * N_HANDLE, 1.0, 2))
     """(start, stop, relative weight, difference order) of the control sequences under the smoothness prior: the
     handle's radii and thickness (one view barely constrains them), and lightly the profile (a
