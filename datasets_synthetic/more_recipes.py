@@ -1,6 +1,6 @@
 """More mesh recipes for out-of-family cases: a mug with a round C handle, a footed bowl, a teacup
-with an ear handle, a tapered stein with a D handle, a house with a lean-to annex and a T-shaped
-house. Independent code as in :mod:`datasets_synthetic.recipes`
+with an ear handle, a tapered stein with a D handle, an egg cup, a sundae cup, a house with a
+lean-to annex and a T-shaped house. Independent code as in :mod:`datasets_synthetic.recipes`
 (numpy and trimesh, no generator code), registered in its ``RECIPES``; each part closed, wound
 outwards."""
 from __future__ import annotations
@@ -102,6 +102,43 @@ def footed_bowl(radius=0.46, height=0.32, wall=0.02, foot_radius=0.19, foot_heig
     prof += [[radius - 0.5 * wall + 0.5 * wall * np.cos(a), height + 0.5 * wall * np.sin(a)] for a in lip]
     inner = [[r - wall, y] for r, y in zip(out_r[::-1], rise[::-1]) if r - wall > 0 and y > foot_height + wall]
     prof += inner + [[0.0, foot_height + wall]]
+    return _assemble([_revolved(prof, sections)], [0])
+
+
+@RECIPES.register("egg_cup")
+def egg_cup(foot_radius=0.17, foot_thickness=0.018, stem_radius=0.055, stem_top=0.2, cup_radius=0.22,
+            collar=0.06, wall=0.018, sections=96):
+    """An egg cup: a disc foot flaring into a short trumpet stem, a round cup (a sphere's lower part
+    up to its equator) with a straight collar above, a cavity of ``wall`` thickness, no handle (a
+    revolved body; label 0)."""
+    ft, sr, r = foot_thickness, stem_radius, cup_radius
+    prof = [[0.0, 0.0], [foot_radius, 0.0], [foot_radius, ft]]
+    prof += [[sr + (foot_radius - sr) * (1 - q) ** 2.5, ft + q * (stem_top - ft)] for q in np.linspace(0.08, 1, 12)]
+    start = np.arcsin(sr / r)
+    centre = stem_top + r * np.cos(start)
+    prof += [[r * np.sin(a), centre - r * np.cos(a)] for a in np.linspace(start, 0.5 * np.pi, 14)[1:]]
+    rim = centre + collar
+    prof += [[r, rim], [r - wall, rim], [r - wall, centre]]
+    prof += [[(r - wall) * np.sin(a), centre - (r - wall) * np.cos(a)] for a in np.linspace(0.5 * np.pi, 0.0, 14)[1:]]
+    return _assemble([_revolved(prof, sections)], [0])
+
+
+@RECIPES.register("sundae_cup")
+def sundae_cup(foot_radius=0.25, foot_thickness=0.03, stem_radius=0.06, stem_height=0.14, bowl_radius=0.42,
+               bowl_height=0.3, wall=0.02, sections=96):
+    """A sundae cup: a flat disc foot, a short straight stem and a wide cone bowl opening upwards
+    (its side slightly bellied), a cavity of ``wall`` thickness, no handle (a revolved body;
+    label 0)."""
+    ft, sr = foot_thickness, stem_radius
+    y0 = ft + stem_height
+    prof = [[0.0, 0.0], [foot_radius, 0.0], [foot_radius, ft], [sr + 0.02, ft], [sr, ft + 0.02], [sr, y0]]
+    q = np.linspace(0.0, 1.0, 16)[1:]
+    out_r = sr + (bowl_radius - sr) * q ** 0.85
+    prof += [[rr, y0 + qq * bowl_height] for rr, qq in zip(out_r, q)]
+    floor = y0 + 0.06
+    inner = [[rr - wall, y0 + qq * bowl_height] for rr, qq in zip(out_r[::-1], q[::-1])
+             if y0 + qq * bowl_height > floor and rr - wall > 0]
+    prof += inner + [[0.0, floor]]
     return _assemble([_revolved(prof, sections)], [0])
 
 
