@@ -3,9 +3,9 @@
 One view's outline barely tells a cup's handle towards the camera from its mirror behind the body;
 the colour image does: a handle in front draws its outline across the body, a handle behind is cut
 by the body's outline. The move mirrors the fit's ``Generator.sided_part`` through the vertical
-plane across the line of sight (a turn of the yaw), gives the mirror a few Adam steps, and where
-the outline does not tell them apart keeps the one whose interior depth edges near the part stand
-out more from the image around them (docs/decisions.md, "The handle's side by the image's edges").
+plane across the line of sight (a turn of the yaw), gives the mirror Adam steps, and where the
+outline does not tell them apart keeps the one whose edges between part and body lie on the
+stronger image gradient (docs/decisions.md, "The handle's side by the image's edges").
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from ipm.settings import Settings, at_least
 DEPTH_JUMP = 0.03
 """Neighbouring pixels whose ray distances differ by more than this share lie across a depth edge."""
 NEAR_PX = 2
-"""Depth edges within this many pixels of the part's own pixels count as the part's."""
+"""Pixels within this many of the outline or of a join (and one more) say nothing of the side."""
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,7 @@ class HandleSideSettings(Settings):
     """Adam steps the mirror gets at the last stage's width before the two are compared."""
     handle_side_tolerance: Annotated[float, at_least(0.0)] = 0.05
     """The mirror is a candidate where its loss is at most this share above the fit's: beyond it
-    the outline itself tells the sides apart."""
+    the outline itself tells the sides apart (set beforehand, not tuned)."""
 
 
 def mirrored_yaw(problem, z: np.ndarray, c2w: np.ndarray) -> np.ndarray:
