@@ -8,12 +8,13 @@ view (``ipm.metrics.texture``: masked PSNR and SSIM in sRGB) on the input view, 
 sphere it sees and the other half.
 
     .venv/bin/python bench/texture.py [--cases cup_1 cup_2] [--inputs 1 6] [--ngp 16] [--views 16]
-        [--seeds 0] [--jobs 2] [--refine none 64:20,256:20] [--repeat 3] [--threads 2]
+        [--seeds 0] [--jobs 2] [--refine none 64:20,256:20] [--texels 256 512] [--repeat 3] [--threads 2]
         [--work DIR] [--out results/bench/texture]
 
 A fit runs as ``ipm reconstruct`` / ``ipm baseline ngp`` on one thread, ``--jobs`` at a time;
 ``--refine`` paints ours' fits again with each refinement (``ipm.texture.Refinement``), one at a
-time on ``--threads``, and times the stage.
+time on ``--threads``, and times the stage; ``--texels`` paints them again (no refinement) at each
+texture size.
 Tune nothing on what it prints for test cases: run it on dev cases (the defaults) to choose, on
 test cases to report.
 """
@@ -81,8 +82,9 @@ def schedule(text: str):
     return Refinement(stages=tuple(tuple(int(x) for x in stage.split(":")) for stage in text.split(",")))
 
 
-def repaint(case: str, work: Path, n_input: int, seed: int, variant: str) -> dict:
-    """Ours' fit of ``case`` painted again with the refinement ``variant`` and scored as :func:`one`."""
+def repaint(case: str, work: Path, n_input: int, seed: int, variant: str, texels: int | None = None) -> dict:
+    """Ours' fit of ``case`` painted again with the refinement ``variant`` on textures of ``texels``
+    a side (None: the stage's own) and scored as :func:`one`."""
     import time
 
     from ipm.generators import get_generator
@@ -92,7 +94,7 @@ def repaint(case: str, work: Path, n_input: int, seed: int, variant: str) -> dic
     from ipm.metrics.texture import score_renders
     from ipm.render.textured import render_painted
     from ipm.synth import load_case
-    from ipm.texture import paint
+    from ipm.texture import TEXTURE_RES, paint
 
     gen = get_generator(load_case(case)["generator"])
     v, f, labels, uv, _ = read_textured_glb(work / f"{case}_diff{n_input}v_s{seed}" / "mesh.glb")
@@ -100,11 +102,12 @@ def repaint(case: str, work: Path, n_input: int, seed: int, variant: str) -> dic
     views = load_views(work / case / "hemi" / "transforms.json").first(n_input)
     t0 = time.perf_counter()
     textures, _ = paint(gen, mesh, load_photos(views), views.masks, views.c2w, views.fov_x, views.lighting,
-                        refinement=schedule(variant), seed=seed)
+                        res=texels or TEXTURE_RES, refinement=schedule(variant), seed=seed)
     seconds = time.perf_counter() - t0
     held = load_views(work / case / "held" / "transforms.json")
     renders = render_painted(v, f, labels, uv, textures, held.c2w, held.fov_x, held.width, held.height)
-    return {"case": case, "row": "diff", "inputs": n_input, "seed": seed, "refine": variant,
+    label = variant if texels is None else f"{variant}, {texels} texels"
+    return {"case": case, "row": "diff", "inputs": n_input, "seed": seed, "refine": label,
             "sides": score_renders(renders, held)["sides"], "texture_seconds": seconds}
 
 
@@ -134,6 +137,8 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=16, help="held (scoring) views per case")
     ap.add_argument("--refine", nargs="*", default=[],
                     help="ours' fits painted again with these refinements (none, or RES:STEPS,RES:STEPS)")
+    ap.add_argument("--texels", nargs="*", type=int, default=[],
+                    help="texture sizes to paint ours' fits again at (no refinement)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default="results/bench/texture")
@@ -161,6 +166,9 @@ def main() -> None:
         for variant in args.refine:  # one at a time: their seconds are the stage's own
             rows += [repaint(c, work, n, s, variant) for c in args.cases for n in args.inputs for s in args.seeds
                      for _ in range(args.repeat)]
+        for texels in args.texels:
+            rows += [repaint(c, work, n, s, "none", texels) for c in args.cases for n in args.inputs
+                     for s in args.seeds for _ in range(args.repeat)]
     from ipm.io.atomic import write_json
     from ipm.runtime import machine_info, machine_line
 
