@@ -174,32 +174,26 @@ def test_the_mirror_turns_the_handle_through_the_plane_across_the_line_of_sight(
         assert np.isclose(np.angle(np.exp(1j * (back - z[problem.n_shape]))), 0.0, atol=1e-6)
 
 
-def test_the_image_edges_tell_a_handle_in_front_from_one_behind(mitsuba_cpu):
+def test_the_image_shading_tells_the_handle_s_side_and_turn(mitsuba_cpu):
     """Shaded images of a mug whose handle is turned towards the camera (drawn over the body) or
-    away from it (hidden): the image's edges score the true side above its mirror, whose outline is
-    the same, where the handle shows over the body, and never below it; without a handle a mesh
-    draws no edge."""
-    from ipm.render.raycast import mesh_scene, pixel_hits
-    from ipm.search.moves.handle import edge_maps, edge_strengths, image_gradient, mirrored_yaw
+    away from it (hidden): of the truth, its mirror (the same outline) and the truth turned by 15 or
+    30 degrees either way, the truth's surface shades most like the image; the candidates are
+    compared on the pixels they all cover, inside the mask's rim."""
+    from ipm.search.moves.handle import LUMINANCE, mirrored_yaw, shading_residuals, surface_maps, turned
 
     problem = Problem(Dishes(), np.zeros(3), 1.0)
     cam = orbit_camera([0, 0.4, 0], 3.0, 0.0, 10.0)
     res, fov = 96, 0.7
     views = Views(fov, res, res, cam[None])
     light = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
-    for turn, shows in ((0.6, True), (-0.4, True), (np.pi - 1.1, False)):
+    for turn in (0.6, -0.4, np.pi - 1.1):
         truth = _mug_facing(problem, turn, cam)
-        mesh = problem.world_mesh(truth, 1)
-        t, face = pixel_hits(mesh_scene(mesh.vertices, mesh.faces), cam, fov, res, res)
-        e1, e2 = (mesh.vertices[mesh.faces[:, k]] - mesh.vertices[mesh.faces[:, 0]] for k in (1, 2))
-        normal = np.cross(e1, e2)
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-12
-        shade = np.where(face >= 0, 0.2 + 0.7 * np.abs(normal[np.maximum(face, 0)] @ light), 0.0)
-        gradient = image_gradient(np.repeat(shade[..., None], 3, axis=2))
-        maps = [edge_maps(problem, z, 1, views) for z in (truth, mirrored_yaw(problem, truth, cam))]
-        assert maps[0][2].any()
-        kept, other = edge_strengths(gradient, maps)
-        assert (kept > other) if shows else (kept == other), turn
-    plain = problem.clip(np.where(np.arange(len(truth)) == problem.spec.index["has_handle"], 0.0, truth))
-    edges, _, part, _ = edge_maps(problem, plain, 1, views)
-    assert not part.any() and not edges.any()
+        normals, part = surface_maps(problem, truth, 1, views)
+        assert (part == problem.generator.part_names.index("handle")).any()
+        albedo = np.where(part == problem.generator.part_names.index("handle"), 0.6, 0.9)
+        shade = np.where(part >= 0, albedo * (0.15 + 0.8 * np.clip(normals @ light, 0.0, None)), 0.0)
+        photo = np.repeat(shade[..., None], 3, axis=2)
+        others = [mirrored_yaw(problem, truth, cam)] + [turned(problem, truth, d) for d in (-30, -15, 15, 30)]
+        maps = [surface_maps(problem, z, 1, views) for z in [truth] + others]
+        residuals = shading_residuals(photo @ LUMINANCE, (part >= 0).astype(float), maps)
+        assert residuals[0] < min(residuals[1:]), (turn, residuals)

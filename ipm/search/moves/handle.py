@@ -1,11 +1,13 @@
-"""The handle's side: a part off the axis in front of the body or behind it, told by the colour image.
+"""The handle's side and turn: a part off the axis whose yaw one view's outline leaves open, told by
+the colour image's shading.
 
-One view's outline barely tells a cup's handle towards the camera from its mirror behind the body;
-the colour image does: a handle in front draws its outline across the body, a handle behind is cut
-by the body's outline. The move mirrors the fit's ``Generator.sided_part`` through the vertical
-plane across the line of sight (a turn of the yaw), gives the mirror Adam steps, and where the
-outline does not tell them apart keeps the one whose edges between part and body lie on the
-stronger image gradient (docs/decisions.md, "The handle's side by the image's edges").
+One view's outline barely tells a cup's handle towards the camera from its mirror behind the body,
+nor a handle turned a little more from one turned less (the fit makes its ring wider or narrower to
+match). The move mirrors the fit's ``Generator.sided_part`` through the vertical plane across the
+line of sight (a turn of the yaw) and gives the mirror Adam steps; where the outline does not tell
+the two apart it tries both turned by ``handle_side_turns`` too, and of the candidates whose loss
+lies within the tolerance of the lowest keeps the one whose surface shades most like the photo
+(docs/decisions.md, "The handle's side and turn by the image's shading").
 """
 from __future__ import annotations
 
@@ -15,12 +17,12 @@ from typing import Annotated
 import numpy as np
 
 from ipm.search.moves.base import Move, register
-from ipm.settings import Settings, at_least
+from ipm.settings import Range, Settings, at_least
 
-DEPTH_JUMP = 0.03
-"""Neighbouring pixels whose ray distances differ by more than this share lie across a depth edge."""
 NEAR_PX = 2
-"""Pixels within this many of the outline or of a join (and one more) say nothing of the side."""
+"""Pixels within this many of the mask's rim say nothing of the shading (they mix object and backdrop)."""
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+"""Linear RGB to luminance (Rec. 709)."""
 
 
 @dataclass(frozen=True)
@@ -29,13 +31,17 @@ class HandleSideSettings(Settings):
 
     KIND = "diff setting"
     handle_side: bool = True
-    """Try the sided part's mirror behind or in front of the body and let the colour image choose
-    (one view with a colour image; docs/decisions.md, "The handle's side by the image's edges")."""
+    """Try the sided part's mirror behind or in front of the body, and turns of both, and let the
+    colour image's shading choose (one view with a colour image; docs/decisions.md, "The handle's
+    side and turn by the image's shading")."""
     handle_side_steps: Annotated[int, at_least(0)] = 80
-    """Adam steps the mirror gets at the last stage's width before the two are compared."""
+    """Adam steps each candidate gets at the last stage's width before they are compared."""
     handle_side_tolerance: Annotated[float, at_least(0.0)] = 0.05
-    """The mirror is a candidate where its loss is at most this share above the fit's: beyond it
-    the outline itself tells the sides apart (set beforehand, not tuned)."""
+    """Candidates whose loss is at most this share above the lowest are ties the shading decides:
+    beyond it the outline itself tells them apart (set beforehand, not tuned)."""
+    handle_side_turns: tuple[Annotated[float, Range(-180.0, 180.0)], ...] = (-45.0, -30.0, -15.0, 15.0, 30.0, 45.0)
+    """Turns of the yaw (degrees) given to the fit and to its mirror where the outline does not
+    tell the two apart."""
 
 
 def mirrored_yaw(problem, z: np.ndarray, c2w: np.ndarray) -> np.ndarray:
@@ -52,79 +58,65 @@ def mirrored_yaw(problem, z: np.ndarray, c2w: np.ndarray) -> np.ndarray:
     return problem.clip(out)
 
 
-def part_edges(t: np.ndarray, on_part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where the sided part meets the rest of the object in the image (H, W each): of two
-    neighbouring pixels that both hit the mesh, one on the part and one off it, the edges (their
-    ray distances differ by more than :data:`DEPTH_JUMP` of the nearer: one in front of the
-    other) and the joins (they do not: where the part is attached)."""
-    edges, joins = np.zeros(t.shape, bool), np.zeros(t.shape, bool)
-    hit = np.isfinite(t)
-    for axis in (0, 1):
-        ta, tb = np.swapaxes(t, 0, axis)[:-1], np.swapaxes(t, 0, axis)[1:]
-        pa, pb = np.swapaxes(on_part, 0, axis)[:-1], np.swapaxes(on_part, 0, axis)[1:]
-        meet = np.swapaxes(hit, 0, axis)[:-1] & np.swapaxes(hit, 0, axis)[1:] & (pa != pb)
-        jump = np.abs(np.where(meet, ta - tb, 0.0)) > DEPTH_JUMP * np.where(meet, np.minimum(ta, tb), 0.0)
-        for out, pairs in ((edges, meet & jump), (joins, meet & ~jump)):
-            o = np.swapaxes(out, 0, axis)
-            o[:-1] |= pairs
-            o[1:] |= pairs
-    return edges, joins
+def turned(problem, z: np.ndarray, degrees: float) -> np.ndarray:
+    """``z`` with its yaw turned by ``degrees``."""
+    out = np.array(z, np.float64)
+    out[problem.n_shape] += np.radians(degrees)
+    return problem.clip(out)
 
 
-def image_gradient(photo: np.ndarray) -> np.ndarray:
-    """Sobel gradient (H, W, 2: along x, along y) of the photo's luminance."""
-    from scipy.ndimage import sobel
-
-    grey = np.asarray(photo, np.float64) @ np.array([0.2126, 0.7152, 0.0722])
-    return np.stack([sobel(grey, 1), sobel(grey, 0)], -1)
-
-
-def edge_maps(problem, z: np.ndarray, lod: int, views) -> tuple[np.ndarray, ...]:
-    """``z`` in the one view (H, W each): its sided part's edges and joins (:func:`part_edges`),
-    the pixels the part covers and those the object covers."""
+def surface_maps(problem, z: np.ndarray, lod: int, views) -> tuple[np.ndarray, np.ndarray]:
+    """``z``'s mesh in the one view: per pixel the normal of the face its ray meets first (H, W, 3)
+    and that face's part (H, W; -1 where the ray misses)."""
     from ipm.render.raycast import mesh_scene, pixel_hits
 
     mesh = problem.world_mesh(z, lod)
     # the views' c2w sees problem.vertex_fn's vertices; world_mesh's are the same where the camera is known
     verts = mesh.vertices if problem.camera is None else np.asarray(
         problem.vertex_fn(problem.key(z), lod)(np.asarray(z, np.float32)), np.float64).reshape(-1, 3)
-    t, face = pixel_hits(mesh_scene(verts, mesh.faces), views.c2w[0], views.fov_x, views.width, views.height)
-    on_part = (face >= 0) & (mesh.labels[np.maximum(face, 0)] == mesh.part_names.index(problem.generator.sided_part))
-    return (*part_edges(t, on_part), on_part, face >= 0)
+    _, face = pixel_hits(mesh_scene(verts, mesh.faces), views.c2w[0], views.fov_x, views.width, views.height)
+    e1, e2 = (verts[mesh.faces[:, k]] - verts[mesh.faces[:, 0]] for k in (1, 2))
+    normals = np.cross(e1, e2)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-12
+    hit = face >= 0
+    return np.where(hit[..., None], normals[np.maximum(face, 0)], 0.0), np.where(hit, mesh.labels[np.maximum(face, 0)], -1)
 
 
-def edge_strengths(gradient: np.ndarray, maps: list[tuple[np.ndarray, ...]]) -> list[float]:
-    """For each candidate's :func:`edge_maps`, the mean strength of the image ``gradient`` across
-    its part's edges (along the part outline's normal, the largest within a pixel: an edge one
-    pixel off still counts), leaving out the outline and the joins of every candidate (by
-    :data:`NEAR_PX` and a pixel more: their gradients say nothing of the side). A candidate that
-    draws no edge there says the image is as elsewhere inside the object: it scores the mean
-    gradient magnitude there (the largest within a pixel too)."""
-    from scipy.ndimage import binary_dilation, binary_erosion, gaussian_filter, maximum_filter, sobel
+def harmonics(n: np.ndarray) -> np.ndarray:
+    """The nine real spherical harmonics up to the second order (unnormalised) of unit vectors n (N, 3)."""
+    x, y, z = n.T
+    return np.stack([np.ones_like(x), x, y, z, x * y, y * z, x * z, 3.0 * z * z - 1.0, x * x - y * y], 1)
 
-    inside = binary_erosion(np.logical_and.reduce([m[3] for m in maps]), iterations=NEAR_PX + 1)
-    keep = inside & ~binary_dilation(np.logical_or.reduce([m[1] for m in maps]), iterations=NEAR_PX + 1)
-    if not keep.any():
+
+def shading_residuals(luminance: np.ndarray, mask: np.ndarray, maps: list[tuple[np.ndarray, np.ndarray]]) -> list[float]:
+    """For each candidate's :func:`surface_maps`, how far the photo's ``luminance`` (H, W, linear)
+    is from a shading of its surface: over the pixels of the ``mask`` (less :data:`NEAR_PX` of its
+    rim and a pixel more) that every candidate covers, per part the luminance fitted by
+    second-order spherical harmonics of the normals (any distant lighting, the part's albedo folded
+    in), the fits' residuals pooled (root mean square)."""
+    from scipy.ndimage import binary_erosion
+
+    common = binary_erosion(mask > 0.5, iterations=NEAR_PX + 1)
+    for _, part in maps:
+        common &= part >= 0
+    if not common.any():
         return [0.0] * len(maps)
-    typical = float(maximum_filter(np.linalg.norm(gradient, axis=-1), size=3)[keep].mean())
+    y = luminance[common]
     out = []
-    for edges, _, part, _ in maps:
-        soft = gaussian_filter(part.astype(np.float64), 1.0)
-        normal = np.stack([sobel(soft, 1), sobel(soft, 0)], -1)
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True) + 1e-12
-        across = np.abs((gradient * normal).sum(-1))
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                shifted = np.abs((np.roll(gradient, (dy, dx), (0, 1)) * normal).sum(-1))
-                across = np.maximum(across, shifted)
-        on = edges & keep
-        out.append(float(across[on].mean()) if on.any() else typical)
+    for normals, part in maps:
+        n, p = normals[common], part[common]
+        sq = 0.0
+        for k in np.unique(p):
+            a, b = harmonics(n[p == k]), y[p == k]
+            coef, *_ = np.linalg.lstsq(a, b, rcond=None)
+            sq += float(((b - a @ coef) ** 2).sum())
+        out.append(float(np.sqrt(sq / len(y))))
     return out
 
 
 @register
 class HandleSide(Move):
-    """The sided part's mirror tried and chosen by the colour image (one view; see the module)."""
+    """The sided part's mirror and turns tried and chosen by the colour image's shading (one view; see the module)."""
 
     name, phase, settings = "handle side", "end", HandleSideSettings
 
@@ -147,19 +139,29 @@ class HandleSide(Move):
         photos = load_photos(views)
         if photos is None:
             return cand
-        gradient = image_gradient(photos[0])
-        score = trial.scorer((10_003, 10_004))
+        score, steps, tol = trial.scorer((10_003, 10_004)), settings.handle_side_steps, settings.handle_side_tolerance
         loss = score(cand.z)
         trial.record("fit", loss)
-        alt, loss_alt = trial.tried(mirrored_yaw(problem, cand.z, views.c2w[0]), "mirror",
-                                    settings.handle_side_steps, score)
-        if loss_alt > (1.0 + settings.handle_side_tolerance) * loss:
-            return cand
-        maps = [edge_maps(problem, z, lod, views) for z in (cand.z, alt)]
-        kept, other = edge_strengths(gradient, maps)
-        chosen = other > kept
-        trial.record(f"{'mirror' if chosen else 'fit'} kept: image edges {other:.4f} (mirror) "
-                     f"vs {kept:.4f} (fit)", loss_alt if chosen else loss)
-        if chosen:
-            cand.z = alt
+        mirror = mirrored_yaw(problem, cand.z, views.c2w[0])
+        alt, loss_alt = trial.tried(mirror, "mirror", steps, score)
+        if loss_alt > (1.0 + tol) * loss:
+            return cand  # the outline tells the sides apart
+        tried = [("fit", cand.z, loss), ("mirror", alt, loss_alt)]
+        for name, base in (("fit", cand.z), ("mirror", mirror)):
+            for turn in settings.handle_side_turns:
+                tag = f"{name} turned {turn:+g} deg"
+                tried.append((tag, *trial.tried(turned(problem, base, turn), tag, steps, score)))
+        lowest = min(t[2] for t in tried)
+        ties = [t for t in tried if t[2] <= (1.0 + tol) * lowest]
+        if len(ties) == 1:
+            name, z, kept = ties[0]
+            trial.record(f"{name} kept: the outline decides", kept)
+        else:
+            maps = [surface_maps(problem, z, lod, views) for _, z, _ in ties]
+            residuals = shading_residuals(photos[0] @ LUMINANCE, views.masks[0], maps)
+            k = int(np.argmin(residuals))
+            name, z, kept = ties[k]
+            trial.record(f"{name} kept: shading residual {residuals[k]:.4f} of {len(ties)} ties "
+                         f"(worst {max(residuals):.4f})", kept)
+        cand.z = z
         return cand
