@@ -174,9 +174,9 @@ class Generator:
     """True when every mesh is a union of closed, outward-facing solids: a renderer may then draw
     the triangles facing the camera alone (``ipm.render.edges``)."""
     sided_part: str | None = None
-    """A part set off the vertical axis whose side one view's outline cannot tell (a cup's handle in
-    front of the body or behind it): the ``handle side`` move tries its mirror and asks the colour
-    image (``ipm.search.moves.handle``)."""
+    """A part set off the vertical axis whose side and turn one view's outline cannot tell (a cup's
+    handle in front of the body or behind it): the ``handle side`` move tries its mirror and turns
+    and asks the colour image's shading (``ipm.search.moves.handle``)."""
     ratios: tuple[str, ...] | None = None
     """The continuous parameters that are not lengths (fractions, scale factors): every other
     continuous one is a length, so lengths times k at scale 1 / k make the same mesh, a gauge
