@@ -193,6 +193,12 @@ class Problem:
         out[: self.n_shape] = self.spec.to_unit(self.spec.clip(x))
         return self.clip(out)
 
+    def turned(self, z: np.ndarray, angle: float) -> np.ndarray:
+        """``z`` with its yaw turned by ``angle`` radians about +y, projected (:meth:`clip`)."""
+        out = np.array(z, np.float64)
+        out[self.n_shape] += angle
+        return self.clip(out)
+
     def clip(self, z: np.ndarray) -> np.ndarray:
         """Project ``z`` into bounds and its shape onto the generator's feasible objects
         (``Generator.feasible``); yaw is wrapped into [0, 2 pi)."""

@@ -179,7 +179,7 @@ def test_the_image_shading_tells_the_handle_s_side_and_turn(mitsuba_cpu):
     away from it (hidden): of the truth, its mirror (the same outline) and the truth turned by 15 or
     30 degrees either way, the truth's surface shades most like the image; the candidates are
     compared on the pixels they all cover, inside the mask's rim."""
-    from ipm.search.moves.handle import LUMINANCE, mirrored_yaw, shading_residuals, surface_maps, turned
+    from ipm.search.moves.handle import LUMINANCE, mirrored_yaw, shading_residuals, surface_maps
 
     problem = Problem(Dishes(), np.zeros(3), 1.0)
     cam = orbit_camera([0, 0.4, 0], 3.0, 0.0, 10.0)
@@ -193,7 +193,7 @@ def test_the_image_shading_tells_the_handle_s_side_and_turn(mitsuba_cpu):
         albedo = np.where(part == problem.generator.part_names.index("handle"), 0.6, 0.9)
         shade = np.where(part >= 0, albedo * (0.15 + 0.8 * np.clip(normals @ light, 0.0, None)), 0.0)
         photo = np.repeat(shade[..., None], 3, axis=2)
-        others = [mirrored_yaw(problem, truth, cam)] + [turned(problem, truth, d) for d in (-30, -15, 15, 30)]
+        others = [mirrored_yaw(problem, truth, cam)] + [problem.turned(truth, np.radians(d)) for d in (-30, -15, 15, 30)]
         maps = [surface_maps(problem, z, 1, views) for z in [truth] + others]
         residuals = shading_residuals(photo @ LUMINANCE, (part >= 0).astype(float), maps)
         assert residuals[0] < min(residuals[1:]), (turn, residuals)

@@ -39,9 +39,7 @@ def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
     n = problem.n_shape
     if abs(np.cos(angle)) < 0.5:
         z = problem.with_shape(z, problem.generator.quarter_turned(problem.spec.from_unit(z[:n])))
-    z = np.array(z, np.float64)
-    z[n] += angle
-    return problem.clip(z)
+    return problem.turned(z, angle)
 
 
 def read_counts_into(problem: Problem, views: Views,

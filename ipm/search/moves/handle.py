@@ -53,16 +53,7 @@ def mirrored_yaw(problem, z: np.ndarray, c2w: np.ndarray) -> np.ndarray:
     h, v = h - (h @ a) * a, v - (v @ a) * a
     v /= max(np.linalg.norm(v), 1e-12)
     h2 = h - 2.0 * (h @ v) * v
-    out = np.array(z, np.float64)
-    out[problem.n_shape] += np.arctan2(a @ np.cross(h, h2), h @ h2)
-    return problem.clip(out)
-
-
-def turned(problem, z: np.ndarray, degrees: float) -> np.ndarray:
-    """``z`` with its yaw turned by ``degrees``."""
-    out = np.array(z, np.float64)
-    out[problem.n_shape] += np.radians(degrees)
-    return problem.clip(out)
+    return problem.turned(z, np.arctan2(a @ np.cross(h, h2), h @ h2))
 
 
 def surface_maps(problem, z: np.ndarray, lod: int, views) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +141,7 @@ class HandleSide(Move):
         for name, base in (("fit", cand.z), ("mirror", mirror)):
             for turn in settings.handle_side_turns:
                 tag = f"{name} turned {turn:+g} deg"
-                tried.append((tag, *trial.tried(turned(problem, base, turn), tag, steps, score)))
+                tried.append((tag, *trial.tried(problem.turned(base, np.radians(turn)), tag, steps, score)))
         lowest = min(t[2] for t in tried)
         ties = [t for t in tried if t[2] <= (1.0 + tol) * lowest]
         if len(ties) == 1:

@@ -42,9 +42,7 @@ def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.
             alt = z.copy()
             alt[i] = v / (levels[i] - 1)
             out.setdefault(spec.names[i], []).append((f"{spec.names[i]}={spec.lower[i] + v:g}", alt))
-    alt = z.copy()
-    alt[n] += np.pi
-    out["yaw"] = [("yaw+180", problem.clip(alt))]
+    out["yaw"] = [("yaw+180", problem.turned(z, np.pi))]
     return out
 
 
