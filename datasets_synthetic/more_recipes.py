@@ -1,5 +1,5 @@
 """More mesh recipes for out-of-family cases: a mug with a round C handle, a footed bowl, a teacup
-with an ear handle, a tapered stein with a D handle, an egg cup, a sundae cup, a house with a
+with an ear handle, a tapered stein with a D handle, an egg cup, a sundae cup, a cocktail glass, a champagne flute, a house with a
 lean-to annex and a T-shaped house. Independent code as in :mod:`datasets_synthetic.recipes`
 (numpy and trimesh, no generator code), registered in its ``RECIPES``; each part closed, wound
 outwards."""
@@ -139,6 +139,47 @@ def sundae_cup(foot_radius=0.25, foot_thickness=0.03, stem_radius=0.06, stem_hei
     inner = [[rr - wall, y0 + qq * bowl_height] for rr, qq in zip(out_r[::-1], q[::-1])
              if y0 + qq * bowl_height > floor and rr - wall > 0]
     prof += inner + [[0.0, floor]]
+    return _assemble([_revolved(prof, sections)], [0])
+
+
+@RECIPES.register("cocktail_glass")
+def cocktail_glass(foot_radius=0.22, foot_rise=0.035, stem_radius=0.022, stem_height=0.34, bowl_radius=0.4,
+                   bowl_height=0.3, wall=0.014, sections=96):
+    """A cocktail glass: a foot sloping up as a shallow cone to a long straight thin stem and a
+    V-shaped cone bowl with straight sides, a cavity of ``wall`` thickness, no handle (a revolved
+    body; label 0)."""
+    sr = stem_radius
+    prof = [[0.0, 0.0], [foot_radius, 0.0], [foot_radius, 0.01]]
+    prof += [[sr + (foot_radius - sr) * (1 - q), 0.01 + foot_rise * q ** 0.7] for q in np.linspace(0.1, 1, 8)]
+    y0 = 0.01 + foot_rise + stem_height
+    prof += [[sr, y0]]
+    prof += [[sr + (bowl_radius - sr) * q, y0 + q * bowl_height] for q in np.linspace(0.05, 1.0, 12)]
+    floor = y0 + 0.04
+    slope = bowl_height / (bowl_radius - sr)
+    prof += [[(y - y0) / slope + sr - wall * 1.2, y] for y in np.linspace(y0 + bowl_height, floor + 0.01, 10)]
+    prof += [[0.0, floor]]
+    return _assemble([_revolved(prof, sections)], [0])
+
+
+@RECIPES.register("flute_glass")
+def flute_glass(foot_radius=0.17, foot_thickness=0.014, stem_radius=0.02, stem_height=0.3, bowl_radius=0.12,
+                bowl_height=0.5, wall=0.012, sections=96):
+    """A champagne flute: a flat thin disc foot, a long thin stem widening at both ends, and a tall
+    narrow bowl (round at its base, a slight belly, drawn in towards the rim), a cavity of
+    ``wall`` thickness, no handle (a revolved body; label 0)."""
+    ft, sr = foot_thickness, stem_radius
+    prof = [[0.0, 0.0], [foot_radius, 0.0], [foot_radius, ft]]
+    ys = np.linspace(0.0, 1.0, 14)
+    prof += [[sr * (1 + 1.2 * (1 - q) ** 6 + 0.8 * q ** 8), ft + q * stem_height] for q in ys]
+    y0 = ft + stem_height
+    q = np.linspace(0.0, 1.0, 24)[1:]
+    out_r = bowl_radius * (np.sin(0.5 * np.pi * np.minimum(q / 0.3, 1.0)) ** 0.8) * (1 - 0.15 * np.maximum(q - 0.55, 0) / 0.45)
+    out_r = np.maximum(out_r, 1.6 * sr)
+    prof += [[rr, y0 + qq * bowl_height] for rr, qq in zip(out_r, q)]
+    floor = y0 + 0.06
+    prof += [[rr - wall, y0 + qq * bowl_height] for rr, qq in zip(out_r[::-1], q[::-1])
+             if y0 + qq * bowl_height > floor + 0.005 and rr - wall > 0]
+    prof += [[0.0, floor]]
     return _assemble([_revolved(prof, sections)], [0])
 
 
