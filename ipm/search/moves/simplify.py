@@ -18,10 +18,11 @@ class SimplifySettings(Settings):
     occam_tolerance: Annotated[float, at_least(0.0)] = 0.03
     """A discrete parameter goes to its simplest value (no handle) if that raises the final loss
     by at most this share: one view cannot tell a handle hidden behind the body from none."""
-    occam_area: Annotated[float, Range(0.0, 1.0)] = 0.0
+    occam_area: Annotated[float, Range(0.0, 1.0)] = 0.01
     """It goes there too where the pixels the value alone explains (the rise of the pixel loss) are
     at most this share of the object's area in the views: a part that covers a sliver, such as a
-    handle standing in for a stem the body cannot make, is not a part the view shows."""
+    handle standing in for a stem the body cannot make, is not a part the view shows
+    (docs/decisions.md, "A part the view barely shows")."""
 
 
 def simplify(trial, z: np.ndarray, tolerance: float, area: float = 0.0) -> np.ndarray:
