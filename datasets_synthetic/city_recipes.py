@@ -1,6 +1,7 @@
 """Buildings of the shapes real ones take and the buildings generator does not make, for the test
-split's out-of-family cases: a U-shaped block round a courtyard, a cross-gabled house, a barn under
-a gambrel roof and a tower under a pyramidal roof. Independent code as in
+split's out-of-family cases (a U-shaped block round a courtyard, a cross-gabled house, a barn under
+a gambrel roof and a tower under a pyramidal roof) and the dev split's (a house under a mansard
+roof, a saltbox house). Independent code as in
 :mod:`datasets_synthetic.recipes` (boxes and convex hulls, no generator code), registered in its
 ``RECIPES``; each part closed, wound outwards; labels wall, window, roof, door."""
 from __future__ import annotations
@@ -118,3 +119,57 @@ def pyramid_tower(side=0.7, floors=5, storey=0.3, roof_height=0.5, overhang=0.05
 
 
 pyramid_tower.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("mansard_house")
+def mansard_house(width=1.3, depth=0.9, floors=2, storey=0.32, lower=0.3, lower_in=0.1, upper=0.1, overhang=0.04,
+                  window=(0.12, 0.16), spacing=0.28, sill=0.08, door=(0.15, 0.25)):
+    """A two-storey house under a mansard roof: on all four sides a steep lower slope (``lower``
+    high, ``lower_in`` inwards) and above it a low hipped top (``upper`` high) over the smaller
+    rectangle; windows on every storey, a door in the front."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    walls = [_box([-hx, 0, -hz], [hx, h, hz])]
+    ex, ez = hx + overhang, hz + overhang
+    kx, kz, top = hx - lower_in, hz - lower_in, h + lower
+    ridge = kx - kz  # the hipped top's ridge along x, its four slopes of one pitch
+    points = [[x, h, z] for x in (-ex, ex) for z in (-ez, ez)] + [[x, top, z] for x in (-kx, kx) for z in (-kz, kz)]
+    points += [[-ridge, top + upper, 0.0], [ridge, top + upper, 0.0]]
+    roofs = [_hull(points)]
+    panes = _box_facades(hx, hz, floors, storey, window, spacing, sill)
+    return _centred(walls, roofs, panes, _door([0.0, 0.0, hz], door))
+
+
+mansard_house.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("saltbox_house")
+def saltbox_house(width=1.2, depth=0.95, front_floors=2, storey=0.3, back_eave=0.32, ridge_at=0.35, ridge=0.28,
+                  overhang=0.04, window=(0.12, 0.16), spacing=0.27, sill=0.08, door=(0.15, 0.25)):
+    """A saltbox house: two storeys at the front (+z), one at the back, under an asymmetric gable
+    along x whose ridge stands ``ridge_at`` of the depth from the front and whose long rear slope
+    comes down to the back wall's lower eave; windows on the front's storeys, the back's and the
+    ends' ground floor, a door in the front."""
+    front = front_floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    zr = hz - ridge_at * depth
+    apex = front + ridge
+    walls = [_hull([[x, 0.0, z] for x in (-hx, hx) for z in (-hz, hz)]
+                   + [[x, y, z] for x in (-hx, hx) for y, z in ((front, hz), (apex - 0.02, zr), (back_eave, -hz))])]
+    ex = hx + overhang
+    fz, bz = hz + overhang, -hz - overhang
+    fy = front - overhang * ridge / (hz - zr)
+    by = back_eave - overhang * (apex - back_eave) / (zr + hz)
+    section = [(fz, fy), (zr, apex), (bz, by)]
+    roofs = [_hull([[x, y, z] for z, y in section for x in (-ex, ex)]
+                   + [[x, y + 0.03, z] for z, y in section for x in (-ex, ex)])]
+    panes = _facade_openings([hx, 0, -hz], [-hx, 0, -hz], [0, 0, -1], 1, storey, window, spacing, sill)
+    for sign in (-1, 1):
+        panes += _facade_openings([sign * hx, 0, -sign * hz], [sign * hx, 0, sign * hz], [sign, 0, 0], 1, storey,
+                                  window, spacing, sill)
+    panes += _facade_openings([-hx, 0, hz], [hx, 0, hz], [0, 0, 1], front_floors, storey, window, spacing, sill,
+                              skip=lambda a: abs(a - hx) < 0.5 * spacing)
+    return _centred(walls, roofs, panes, _door([0.0, 0.0, hz], door))
+
+
+saltbox_house.semantic_labels = BUILDING_LABELS
