@@ -211,6 +211,25 @@ def test_finalists_are_distinct_basins():
     assert len(finalists(problem, final, 10)) == 4
 
 
+def test_the_finalists_choice_keeps_fewer_wings_within_the_occam_margin():
+    """The lowest loss is kept unless a finalist with fewer parts lies within the margin of it;
+    then the fewest parts win. A building counts its main wing, the plan's wings and the annex."""
+    from ipm.search.loop import occam_choice
+
+    assert occam_choice([0.0026, 0.0036, 0.0069], [3, 1, 1], margin=0.0) == 0
+    assert occam_choice([0.0026, 0.0036, 0.0069], [3, 1, 1], margin=0.0011) == 1
+    assert occam_choice([0.0026, 0.0036, 0.0030], [3, 1, 2], margin=0.0011) == 1  # fewest parts first
+    assert occam_choice([0.0040, 0.0036, 0.0030], [1, 2, 3], margin=0.01) == 0
+    assert occam_choice([0.0030, 0.0036], [1, 1], margin=0.01) == 0  # same parts: the loss decides
+    gen = get_generator("buildings")
+    x = gen.spec.default.copy()
+    counts = []
+    for template, annex in ((0, 0), (1, 0), (2, 1), (3, 1)):
+        x[gen.spec.index["template"]], x[gen.spec.index["annex"]] = template, annex
+        counts.append(gen.occam_parts(x))
+    assert counts == [1, 2, 3, 4] and get_generator("dishes").occam_parts(get_generator("dishes").spec.default) == 0
+
+
 def test_input_iou_is_nan_without_open3d(tiny_case, monkeypatch):
     """The trace's IoU column, a value in (0, 1) for a start unlike the object; where open3d is
     not installed (the GPU machine) the column is NaN and the fit still runs."""

@@ -189,6 +189,12 @@ class Generator:
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""
 
+    def occam_parts(self, x: np.ndarray) -> int:
+        """How many parts of the kind one view may show where there are none (a building's wings)
+        object ``x`` has: the choice between finalists prefers fewer (``ipm.search.loop``).
+        Default: 0, no such parts."""
+        return 0
+
     def sample(self, rng: np.random.Generator) -> np.ndarray:
         """A random object of the generator's family (physical parameters), for the test split's
         in-family cases (``ipm.cases``). Default: uniform in the unit cube."""

@@ -57,6 +57,11 @@ class LoopSettings(Settings):
     """The learned start checks its fit: where the best loss of its memetic stage is above this, the
     stage runs again from the presets' start at full length and both last generations go to the
     finalists; ``None`` trusts it always (docs/decisions.md, 'A learned start that checks its fit')."""
+    occam_plan: Annotated[float, Range(0.0, 1.0)] = 0.03
+    """Between the refined finalists, one with fewer parts (``Generator.occam_parts``: a building's
+    wings) is kept instead of the lowest loss where its loss is higher by at most this share of the
+    object's pixels: more wings match one view's outline more easily than they are there
+    (docs/decisions.md, 'A plan with fewer wings'); 0 keeps the lowest loss."""
     max_tilt: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Bound of the two tilt angles (radians); 0 holds the object upright, the scene convention.
     Raise it for objects that may lean (docs/decisions.md, 'Upright objects')."""
@@ -81,6 +86,14 @@ def finalists(problem: Problem, final: list[Individual], k: int) -> list[Individ
         if len(out) == k:
             break
     return out
+
+
+def occam_choice(losses: list[float], parts: list[int], margin: float) -> int:
+    """Index of the finalist kept: the lowest loss, unless finalists with fewer parts lie within
+    ``margin`` of it; then, of those, the fewest parts and the lowest loss."""
+    k = int(np.argmin(losses))
+    fewer = [i for i, (loss, n) in enumerate(zip(losses, parts)) if n < parts[k] and loss - losses[k] <= margin]
+    return min(fewer, key=lambda i: (parts[i], losses[i])) if fewer else k
 
 
 def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
@@ -183,9 +196,13 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         if len(refined) > 1:
             score, record = scorer(objective, (10_007, 10_008)), track.recorder("choose", res)
             losses = [score(z) for z in refined]
+            parts = [problem.generator.occam_parts(problem.spec.from_unit(z[: problem.n_shape])) for z in refined]
             for i, loss in enumerate(losses):
                 record(f"finalist {i}", loss)
-            cands = [cands[int(np.argmin(losses))]]
+            k, lowest = occam_choice(losses, parts, loop.occam_plan * float(np.mean(objective.targets))), int(np.argmin(losses))
+            if k != lowest:
+                record(f"finalist {k} kept: {parts[k]} parts, the lowest loss's {parts[lowest]}", losses[k])
+            cands = [cands[k]]
         checkpoint(cands[0].z)
     for move in phase["end"]:
         cands = run(move, cands, objective, objective)

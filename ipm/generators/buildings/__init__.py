@@ -89,6 +89,10 @@ class Buildings(Generator):
         s["roofs"] = {s["roof_type"], *(s[f"wing{k}_roof"] for k in s["wings"])}
         return s
 
+    def occam_parts(self, x) -> int:
+        """The main wing and every wing the plan and the annex switch on."""
+        return 1 + len(self._structure(self.topology_key(x))["wings"])
+
     def change_count(self, x, name, value):
         """A storey more or less keeps the walls' height (the floor height takes up the change,
         within its bounds); other counts change alone."""
