@@ -1,8 +1,8 @@
 """More mesh recipes for out-of-family cases: a mug with a round C handle, a footed bowl, a teacup
-with an ear handle, a tapered stein with a D handle, an egg cup, a sundae cup, a cocktail glass, a champagne flute, a house with a
-lean-to annex and a T-shaped house. Independent code as in :mod:`datasets_synthetic.recipes`
-(numpy and trimesh, no generator code), registered in its ``RECIPES``; each part closed, wound
-outwards."""
+with an ear handle, a tapered stein with a D handle, an egg cup, a sundae cup, a cocktail glass, a
+champagne flute, a house with a lean-to annex and a T-shaped house. Independent code as in
+:mod:`datasets_synthetic.recipes` (numpy and trimesh, no generator code), registered in its
+``RECIPES``; each part closed, wound outwards."""
 from __future__ import annotations
 
 import numpy as np

@@ -199,7 +199,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
             parts = [problem.generator.occam_parts(problem.spec.from_unit(z[: problem.n_shape])) for z in refined]
             for i, loss in enumerate(losses):
                 record(f"finalist {i}", loss)
-            k, lowest = occam_choice(losses, parts, loop.occam_plan * float(np.mean(objective.targets))), int(np.argmin(losses))
+            k, lowest = occam_choice(losses, parts, loop.occam_plan * objective.object_share), int(np.argmin(losses))
             if k != lowest:
                 record(f"finalist {k} kept: {parts[k]} parts, the lowest loss's {parts[lowest]}", losses[k])
             cands = [cands[k]]

@@ -77,6 +77,9 @@ class Objective:
     def __init__(self, problem: Problem, views: Views, width: int, lod: int, profile: ObjectiveSettings):
         self.problem, self.lod, self.reg, self.width = problem, lod, profile.reg_weight, width
         self.targets = resize_masks(views.masks, width)
+        self.object_share = float(np.mean(self.targets))
+        """The object's share of the pixels the silhouette loss averages: a rise of the loss by
+        ``a * object_share`` is a share ``a`` of the object's pixels (the Occam margins)."""
         h = self.targets.shape[1]
         gen, terms = problem.generator, []
         self.renderer = make_renderer(profile.renderer, views.c2w, views.fov_x, width, h, profile.spp,

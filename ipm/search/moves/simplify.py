@@ -33,7 +33,6 @@ def simplify(trial, z: np.ndarray, tolerance: float, area: float = 0.0) -> np.nd
     the same render seeds."""
     problem = trial.problem
     spec, score = problem.spec, trial.scorer((10_001, 10_002))
-    share = float(np.mean(trial.score.targets))  # the object's share of the pixels the loss averages
     for name, value in getattr(problem.generator, "simplest", {}).items():
         i = spec.index[name]
         if spec.from_unit(z[: problem.n_shape])[i] == value:
@@ -43,7 +42,7 @@ def simplify(trial, z: np.ndarray, tolerance: float, area: float = 0.0) -> np.nd
         loss, loss_alt = score(z), score(alt)
         trial.record("fit", loss)
         trial.record(f"{name}={value:g}", loss_alt)
-        if loss_alt <= (1.0 + tolerance) * loss or loss_alt - loss <= area * share:
+        if loss_alt <= (1.0 + tolerance) * loss or loss_alt - loss <= area * trial.score.object_share:
             z = alt
     return z
 
