@@ -1,7 +1,7 @@
 """Buildings of the shapes real ones take and the buildings generator does not make, for the test
 split's out-of-family cases (a U-shaped block round a courtyard, a cross-gabled house, a barn under
 a gambrel roof and a tower under a pyramidal roof) and the dev split's (a house under a mansard
-roof, a saltbox house). Independent code as in
+roof, a saltbox house, a gabled farmhouse whose wing makes an L). Independent code as in
 :mod:`datasets_synthetic.recipes` (boxes and convex hulls, no generator code), registered in its
 ``RECIPES``; each part closed, wound outwards; labels wall, window, roof, door."""
 from __future__ import annotations
@@ -173,3 +173,38 @@ def saltbox_house(width=1.2, depth=0.95, front_floors=2, storey=0.3, back_eave=0
 
 
 saltbox_house.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("l_farmhouse")
+def l_farmhouse(width=1.4, depth=0.7, floors=2, storey=0.31, roof_height=0.36, wing_width=0.6, wing_depth=0.7,
+                wing_storey=0.4, wing_roof=0.3, wing_at=-1, wing_side=1, overhang=0.05, window=(0.11, 0.15),
+                spacing=0.26, sill=0.08, door=(0.15, 0.25)):
+    """An L-shaped farmhouse: a main block under a gable roof along x and, flush with its end at
+    ``wing_at`` (-1 left, +1 right), a one-storey wing ``wing_storey`` high going out from its front
+    (``wing_side`` +1) or back (-1) under a lower gable along z whose ridge runs into the main roof;
+    windows on every wall, a door in the main front (boxes and convex hulls; no generator code)."""
+    h = floors * storey
+    hx, hz = 0.5 * width, 0.5 * depth
+    x0, x1 = sorted((wing_at * hx, wing_at * (hx - wing_width)))
+    z0, z1 = sorted((wing_side * (hz - 0.01), wing_side * (hz + wing_depth)))
+    walls = [_box([-hx, 0, -hz], [hx, h, hz]), _box([x0, 0, z0], [x1, wing_storey, z1])]
+    roofs = [_gable_roof(-hx, hx, -hz, hz, h, roof_height, overhang),
+             _gable_roof(x0, x1, z0, z1, wing_storey, wing_roof, overhang, ridge_along_z=True)]
+    sf = np.array([0.0, 0.0, wing_side])
+    panes = _facade_openings([hx * -wing_side, 0, -wing_side * hz], [hx * wing_side, 0, -wing_side * hz], -sf, floors,
+                             storey, window, spacing, sill)
+    free = sorted((wing_at * (hx - wing_width), -wing_at * hx))
+    panes += _facade_openings([free[0], 0, wing_side * hz], [free[1], 0, wing_side * hz], sf, floors, storey, window,
+                              spacing, sill, skip=lambda a: abs(a - 0.5 * (free[1] - free[0])) < 0.5 * spacing)
+    for sign in (-1, 1):
+        panes += _facade_openings([sign * hx, 0, -sign * hz], [sign * hx, 0, sign * hz], [sign, 0, 0], floors, storey,
+                                  window, spacing, sill)
+        xs = x1 if sign > 0 else x0
+        panes += _facade_openings([xs, 0, z0], [xs, 0, z1], [sign, 0, 0], 1, storey, window, spacing, sill)
+    end = wing_side * (hz + wing_depth)
+    panes += _facade_openings([x0, 0, end], [x1, 0, end], sf, 1, storey, window, spacing, sill)
+    doors = _door([0.5 * (free[0] + free[1]), 0.0, wing_side * hz], door)
+    return _centred(walls, roofs, panes, doors)
+
+
+l_farmhouse.semantic_labels = BUILDING_LABELS
