@@ -6,15 +6,13 @@ A generator that lists this move has facades (``ipm.facades``): ``counts``, ``fa
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from ipm.facades import marker_reading, read_counts
+from ipm.facades import marker_turn, read_counts
 from ipm.io.views import Views
 from ipm.problem import Problem
 from ipm.search.moves.base import Move, register
-from ipm.search.moves.polish import PolishSettings
 from ipm.search.objective import ObjectiveSettings, class_masks
 from ipm.settings import Settings
 
@@ -44,51 +42,30 @@ def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
     return problem.turned(z, angle)
 
 
-def read_counts_into(problem: Problem, views: Views, z: np.ndarray,
-                     settle: Callable[[np.ndarray, str], tuple[np.ndarray, float]] | None = None
-                     ) -> tuple[np.ndarray, list[str], frozenset[str]]:
+def read_counts_into(problem: Problem, views: Views,
+                     z: np.ndarray) -> tuple[np.ndarray, list[str], frozenset[str]]:
     """``z`` turned when the views' marker class says it faces the wrong way
-    (:func:`ipm.facades.marker_reading`: a door on the back or a side), then with the counts the
-    input views' class masks show set to what they show (:func:`ipm.facades.read_counts` on the
-    facades the views face; a storey more or less keeps the walls' height: ``change_count``); the
-    changes made; and the counts the views settle, for polish to leave: those read (the next
-    reading would set them again) and those of sides no view faces (no loss tells their values
-    apart). With ``settle`` (a point and its name -> the point after a few Adam steps and its
-    loss), the turned and the unturned point (each with its counts read) are both settled, and
-    the turn stands only where its loss exceeds the other's by no more than the marker's
-    evidence, the share of the views' pixels it covers: the marker tells apart the sides one
-    silhouette leaves open, not a plan or roof the silhouette rules out. ``z`` itself, no change
-    and nothing settled when the views have no class masks or the generator no counts."""
+    (:func:`ipm.facades.marker_turn`: a door on the back or a side), then with the counts the input views'
+    class masks show set to what they show (:func:`ipm.facades.read_counts` on the facades the
+    views face; a storey more or less keeps the walls' height: ``change_count``); the
+    changes made; and the counts the views settle, for polish to leave: those read (the
+    next reading would set them again) and those of sides no view faces (no loss tells their
+    values apart). ``z`` itself, no change and
+    nothing settled when the views have no class masks or the generator no counts."""
     gen, spec, n = problem.generator, problem.spec, problem.n_shape
     masks = class_masks(gen, views)
     if masks is None or not gen.counts:
         return z, [], frozenset()
+    changes = []
     marker = class_masks(gen, views, gen.marker[0]) if gen.marker else None
-    turn, evidence = (0.0, 0.0) if marker is None else \
-        marker_reading(gen, spec.from_unit(z[:n]), problem.to_world(z), views, marker[0])
-    if not turn:
-        return _counts_read(problem, views, masks[0], z, [])
-    name = f"yaw{np.degrees(turn):+.0f}"
-    kept = _counts_read(problem, views, masks[0], turned(problem, z, turn), [name])
-    if settle is None:
-        return kept
-    still = _counts_read(problem, views, masks[0], z, [])
-    (z_turned, loss), (z_still, loss_still) = settle(kept[0], name), settle(still[0], "unturned")
-    if loss <= loss_still + evidence:
-        return (z_turned,) + kept[1:]
-    return z_still, [f"{name} refused: loss {loss:.5f} against {loss_still:.5f} + {evidence:.5f}"] + still[1], still[2]
-
-
-def _counts_read(problem: Problem, views: Views, masks: np.ndarray, z: np.ndarray,
-                 changes: list[str]) -> tuple[np.ndarray, list[str], frozenset[str]]:
-    """``z`` with the counts the class ``masks`` show set (:func:`read_counts_into`), ``changes`` with
-    those made, and the counts settled."""
-    gen, spec, n = problem.generator, problem.spec, problem.n_shape
+    turn = 0.0 if marker is None else marker_turn(gen, spec.from_unit(z[:n]), problem.to_world(z), views, marker[0])
+    if turn:
+        z = turned(problem, z, turn)
+        changes.append(f"yaw{np.degrees(turn):+.0f}")
     x = spec.from_unit(z[:n])
     pose = problem.decode(z)["pose"]
     seen = gen.seen_counts(pose["yaw"], views.c2w[:, :3, 3] - np.asarray(pose["translation"]))
-    found = read_counts(gen, x, problem.to_world(z), seen, views, masks, views.masks)
-    changes = list(changes)
+    found = read_counts(gen, x, problem.to_world(z), seen, views, masks[0], views.masks)
     for name, value in found.items():
         if value != round(x[spec.index[name]]):
             x = gen.change_count(x, name, value)
@@ -103,9 +80,7 @@ class _Read(Move):
         return reads(profile)
 
     def __call__(self, cand, trial, settings):
-        score, steps = trial.scorer((10_013, 10_014)), trial.profile.of(PolishSettings).polish_steps
-        z, changes, settled = read_counts_into(trial.problem, trial.views, cand.z,
-                                               lambda q, name: trial.tried(q, name, steps, score))
+        z, changes, settled = read_counts_into(trial.problem, trial.views, cand.z)
         for change in changes:
             trial.record(change, np.nan)
         cand.z, cand.settled = z, settled
