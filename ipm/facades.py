@@ -105,11 +105,19 @@ def _facade_frames(sides: dict, to_world, views):
 def marker_turn(generator, x, to_world, views, marker_masks: np.ndarray) -> float:
     """The turn about +y (radians; 0, a quarter or a half) that the views' ``generator.marker``
     class (buildings: the door, on the front only) says the estimate ``x`` posed by ``to_world``
-    needs: the turn that brings the marker's facade to the seen facade that shows most of the
-    marker, or a half turn when the views show no marker anywhere though a typical one (the
-    generator's defaults) on the estimate's facade would show (``MARKER_PIXELS`` wide or more
-    past the reveal that hides it at an angle). From one view the long sides of a house have one
-    silhouette, and a square house four."""
+    needs (:func:`marker_reading`'s first value)."""
+    return marker_reading(generator, x, to_world, views, marker_masks)[0]
+
+
+def marker_reading(generator, x, to_world, views, marker_masks: np.ndarray) -> tuple[float, float]:
+    """The turn :func:`marker_turn` gives and the evidence for it, as a share of the views' pixels:
+    the turn brings the marker's facade to the seen facade that shows most of the marker (the
+    evidence: the marker's pixels), or is a half turn when the views show no marker anywhere
+    though a typical one (the generator's defaults) on the estimate's facade would show
+    (``MARKER_PIXELS`` wide or more past the reveal that hides it at an angle; the evidence: the
+    pixels it would cover). From one view the long sides of a house have one silhouette, and a
+    square house four; where the turn changes the silhouette, the silhouette's pixels outweigh it
+    (``ipm.search.moves.counts``)."""
     sides = generator.facades(x)
     frames = _facade_frames(sides, to_world, views)
     own = generator.marker[1]
@@ -121,16 +129,19 @@ def marker_turn(generator, x, to_world, views, marker_masks: np.ndarray) -> floa
     n_own = np.asarray(sides[own][2], float)
     if shown and max(shown.values()) > 0:
         n_to = np.asarray(sides[max(shown, key=shown.get)][2], float)
-        return float(np.arctan2(np.cross(n_own, n_to)[1], n_own @ n_to))
+        return float(np.arctan2(np.cross(n_own, n_to)[1], n_own @ n_to)), float(np.mean(marker_masks > 0.5))
     o, d_along, best, cos, _, _ = frames[own]
     # no marker pixel anywhere pins the estimate's own marker (the loss shrinks it out of sight),
     # so the question is whether a typical one (the generator's defaults) would show there
-    width, recess = generator.marker_extent(generator.spec.default)
+    width, recess, height = generator.marker_extent(generator.spec.default)
     ends = project(np.stack([o, o + d_along]), views.c2w[best], views.fov_x, views.width, views.height)
     per_unit = np.linalg.norm(ends[1] - ends[0])  # image pixels per object unit along the facade, foreshortened
     tan = np.sqrt(max(1.0 - cos**2, 0.0)) / max(cos, 1e-6)
-    shows = cos > SEEN_COS and (width - recess * tan) * per_unit > MARKER_PIXELS  # the reveal hides the rest
-    return float(np.pi) if shows and not marker_masks.any() else 0.0
+    wide = (width - recess * tan) * per_unit  # the reveal hides the rest
+    if cos > SEEN_COS and wide > MARKER_PIXELS and not marker_masks.any():
+        pixels = wide * height * per_unit / max(cos, 1e-6)  # upright, so not foreshortened as the width is
+        return float(np.pi), float(pixels / (views.width * views.height * len(marker_masks)))
+    return 0.0, 0.0
 
 
 def read_counts(generator, x: np.ndarray, to_world, seen: list[str], views, class_masks: np.ndarray,

@@ -211,6 +211,17 @@ def test_finalists_are_distinct_basins():
     assert len(finalists(problem, final, 10)) == 4
 
 
+def test_twins_are_compared_with_their_credit_and_only_with_each_other():
+    """Of each lineage (a finalist and the twins forked from it) the lowest loss less its credit is
+    left; a credit never moves a candidate past another lineage's."""
+    from ipm.search.loop import twin_choice
+
+    assert twin_choice([0.010, 0.008, 0.012], [0.0, 0.0, 0.0], [0, 1, 2]) == [0, 1, 2]  # no twins
+    assert twin_choice([0.0180, 0.0190, 0.0107], [0.005, 0.0, 0.0], [1, 1, 0]) == [0, 2]  # the credit decides
+    assert twin_choice([0.0250, 0.0060], [0.005, 0.0], [0, 0]) == [1]  # a rise beyond it does not
+    assert twin_choice([0.0060, 0.0060], [0.0, 0.0], [0, 0]) == [0]  # a tie: the first
+
+
 def test_the_finalists_choice_keeps_fewer_wings_within_the_occam_margin():
     """The lowest loss is kept unless a finalist with fewer parts lies within the margin of it;
     then the fewest parts win. A building counts its main wing, the plan's wings and the annex."""

@@ -2,7 +2,7 @@
 own settings, and the start of the search is pluggable."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Annotated
 
 import numpy as np
@@ -60,6 +60,19 @@ class Idle(Move):
     def __call__(self, cand, trial, settings):
         trial.tried(cand.z, "idle", 3, trial.scorer((5, 6)))
         return cand
+
+
+@register
+class Fork(Move):
+    """A toy finalist move: each finalist forks into itself and a twin turned a little and credited
+    with a loss of 1 (the way the door's reading forks a building)."""
+
+    name, phase = "fork", "finalist"
+
+    def __call__(self, cand, trial, settings):
+        twin = replace(cand, z=cand.z.copy(), credit=1.0)
+        twin.z[trial.problem.n_shape] += 0.3
+        return [cand, twin]
 
 
 class ToyCups(Dishes):
@@ -121,6 +134,27 @@ def test_a_move_that_changes_nothing_leaves_the_fit_as_it_was(mug_view):
             for gen in (Dishes(), Idling())]
     assert (fits[1][1]["stage"] == "idle").sum() == 3 + 1  # it ran: three steps and a score
     np.testing.assert_array_equal(fits[0][0], fits[1][0])
+
+
+@pytest.mark.slow
+def test_a_forked_finalist_s_twins_race_through_the_first_stage(mug_view):
+    """A finalist move may return several candidates: each is refined through the first stage, and
+    between twins the finalists' choice takes a twin's credit off its loss."""
+    problem, views = mug_view
+
+    class Forking(Dishes):
+        moves = ("fork",)
+
+    profile = get_profile("smoke", refine_res=(32, 48), refine_iterations=(2, 3), refine_candidates=1)
+    z, trace = reconstruct(Problem(Forking(), problem.anchor_t, problem.anchor_s), views, profile, seed=0,
+                           progress=False)
+    refine = trace[trace["stage"] == "refine"]
+    assert (refine["res"] == 32).sum() == 2 * 3 and (refine["res"] == 48).sum() == 3 + 1  # both twins, then one
+    chosen = trace[trace["stage"] == "choose"]
+    assert list(chosen["origin"]) == ["finalist 0", "finalist 1, twin credited 1.00000",
+                                      "finalist 0 left: its twin's loss less its credit is lower"]
+    assert 0.0 < chosen["loss"].iloc[1] < 1.0  # the loss as scored; the credit decides between the twins
+    assert np.all(np.isfinite(z))
 
 
 @pytest.mark.slow

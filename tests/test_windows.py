@@ -20,7 +20,7 @@ from ipm.generators.buildings.table import ROOF_KINDS
 from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
-from ipm.facades import count_rows_and_windows, marker_turn, runs
+from ipm.facades import count_rows_and_windows, marker_reading, marker_turn, runs
 from ipm.search.moves import MOVES
 from ipm.search.moves.counts import read_counts_into, turned
 from ipm.search.moves.place import PlaceSettings, sweep_place
@@ -28,7 +28,7 @@ from ipm.search.moves.polish import PolishSettings, neighbours, polish
 from ipm.search.moves.roof import RoofSettings, decide
 from ipm.search.moves.sight import SightSettings, sight_axis, sweep_sight
 from ipm.search.objective import Objective, class_masks
-from ipm.search.trial import Trial
+from ipm.search.trial import Candidate, Trial
 from ipm.metrics.recovery import parameter_recovery, seen_counts, true_parameters
 from ipm.problem import Problem, estimate_anchor
 from ipm.profiles import get_profile
@@ -600,6 +600,38 @@ def test_counts_are_read_back_at_the_truths_pose(building_views):
     aside = problem.initial_z(gen.spec.to_unit(hidden), np.radians(pose["yaw_deg"] + 30.0))
     aside[problem.n_shape + 6] = 0.0
     assert marker_turn(gen, hidden, problem.to_world(aside), views, np.zeros_like(door)) == pytest.approx(np.pi)
+
+
+def test_a_turn_the_door_asks_of_a_finalist_forks_it(building_views):
+    """building_1 turned half way (its door on the back): the finalist's reading forks it into the
+    turned point, credited with the door's share of the views' pixels, and the unturned twin,
+    which no later reading turns; a finalist facing the right way is read, not forked."""
+    case = json.loads((building_views / "ground_truth.json").read_text())
+    gen, truth = true_parameters(case)
+    pose = case["pose"]
+    problem = Problem(gen, np.asarray(pose["translation"]), pose["scale"])
+    z = problem.initial_z(gen.spec.to_unit(truth), np.radians(pose["yaw_deg"]) + np.pi)
+    z[problem.n_shape + 6] = 0.0
+    views = load_views(building_views / "transforms.json")
+    door = class_masks(gen, views, "door")[0]
+    angle, evidence = marker_reading(gen, truth, problem.to_world(z), views, door)
+    assert np.degrees(angle) == pytest.approx(180.0) and evidence == pytest.approx(float(np.mean(door > 0.5)))
+    assert 0.0 < evidence < 0.05
+    recorded = []
+    helper = trial(problem, None, views=views, record=lambda name, loss: recorded.append(name))
+    twins = MOVES["read"](Candidate(z), helper, None)
+    assert isinstance(twins, list) and len(twins) == 2
+    turned_twin, still = twins
+    assert np.cos(turned_twin.z[problem.n_shape] - z[problem.n_shape]) == pytest.approx(-1.0)
+    assert turned_twin.credit == pytest.approx(evidence) and not turned_twin.keep_facing
+    assert np.cos(still.z[problem.n_shape] - z[problem.n_shape]) == pytest.approx(1.0)
+    assert still.keep_facing and still.credit == 0.0 and still.settled
+    assert recorded[0] == "yaw+180" and "unturned twin" in recorded
+    again = MOVES["read again"](still, helper, None)
+    assert not isinstance(again, list) and again.keep_facing
+    assert np.cos(again.z[problem.n_shape] - z[problem.n_shape]) == pytest.approx(1.0)
+    right = MOVES["read"](Candidate(turned_twin.z), helper, None)
+    assert not isinstance(right, list) and right.credit == 0.0 and not right.keep_facing
 
 
 @pytest.mark.parametrize("case, shown", [

@@ -96,6 +96,16 @@ def occam_choice(losses: list[float], parts: list[int], margin: float) -> int:
     return min(fewer, key=lambda i: (parts[i], losses[i])) if fewer else k
 
 
+def twin_choice(losses: list[float], credits: list[float], lineage: list[int]) -> list[int]:
+    """Indices of the candidates left once twins (those of one ``lineage``) are compared: of each
+    lineage the lowest loss less its credit (evidence the loss does not weigh), in their order."""
+    best = {}
+    for i, (loss, credit, line) in enumerate(zip(losses, credits, lineage)):
+        if line not in best or loss - credit < losses[best[line]] - credits[best[line]]:
+            best[line] = i
+    return sorted(best.values())
+
+
 def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int = 128) -> float:
     """Mean IoU of the input masks and the silhouettes of ``z``'s mesh from the input cameras (open3d
     ray casting at ``res`` px): the trace's progress in the metric's own terms. NaN where the
@@ -144,7 +154,12 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         out = []
         for c in cands:
             steps.rewind()  # each candidate's steps draw the same seeds, whatever ran before
-            out.append(move(c, trial, profile.of(move.settings) if move.settings else None))
+            moved = move(c, trial, profile.of(move.settings) if move.settings else None)
+            if isinstance(moved, list):  # a fork: each twin refined through the first stage
+                track.extend((len(moved) - 1) * (loop.refine_iterations[0] + 1))
+                out += moved
+            else:
+                out.append(moved)
         return out
 
     objective = Objective(problem, views, mem.memetic_res, max(mem.memetic_lod, least), profile.objective)
@@ -173,17 +188,16 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         track.recorder("start", objective.width)(
             "won: presets" if id(final[0]) in added else "won: learned", final[0].best_loss)
     checkpoint(final[0].best_z)
-    cands = [Candidate(ind.best_z) for ind in finalists(problem, final, loop.refine_candidates)]
-    for i, cand in enumerate(cands):
-        for move in phase["finalist"]:
-            cand = run(move, [cand], objective, objective)[0]
-        cands[i] = cand
+    chosen = finalists(problem, final, loop.refine_candidates)
+    cands = [Candidate(ind.best_z, lineage=i) for i, ind in enumerate(chosen)]
+    for move in phase["finalist"]:
+        cands = run(move, cands, objective, objective)
     checkpoint(cands[0].z)
     for stage, (res, iters) in enumerate(zip(loop.refine_res, loop.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(loop.refine_lod, least), profile.objective)
         for move in phase["stage"] + (phase["last"] if stage == len(loop.refine_res) - 1 else []):
             cands = run(move, cands, previous if move.steps_before else objective, objective)
-        refined = []
+        refined, carried = [], cands
         for cand in cands:
             for move in phase["refine"]:
                 cand = run(move, [cand], objective, objective)[0]
@@ -192,16 +206,21 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
             ind = Individual(cand.z, problem.key(cand.z), "refine", lr=mem.lr * 0.4)
             adam_steps(ind, iters + 1, objective, problem.clip, mem.reject_ratio, track.on_eval)
             refined.append(ind.best_z)
-        cands = [Candidate(z) for z in refined]
+        cands = [replace(c, z=z, settled=frozenset()) for c, z in zip(carried, refined)]
         if len(refined) > 1:
             score, record = scorer(objective, (10_007, 10_008)), track.recorder("choose", res)
-            losses = [score(z) for z in refined]
-            parts = [problem.generator.occam_parts(problem.spec.from_unit(z[: problem.n_shape])) for z in refined]
-            for i, loss in enumerate(losses):
-                record(f"finalist {i}", loss)
+            losses = [score(c.z) for c in cands]
+            for i, (loss, c) in enumerate(zip(losses, cands)):
+                record(f"finalist {i}" + (f", twin credited {c.credit:.5f}" if c.credit else "")
+                       + (", unturned twin" if c.keep_facing else ""), loss)
+            left = twin_choice(losses, [c.credit for c in cands], [c.lineage for c in cands])
+            for i in sorted(set(range(len(cands))) - set(left)):
+                record(f"finalist {i} left: its twin's loss less its credit is lower", losses[i])
+            cands, losses = [cands[i] for i in left], [losses[i] for i in left]
+            parts = [problem.generator.occam_parts(problem.spec.from_unit(c.z[: problem.n_shape])) for c in cands]
             k, lowest = occam_choice(losses, parts, loop.occam_plan * objective.object_share), int(np.argmin(losses))
             if k != lowest:
-                record(f"finalist {k} kept: {parts[k]} parts, the lowest loss's {parts[lowest]}", losses[k])
+                record(f"finalist {left[k]} kept: {parts[k]} parts, the lowest loss's {parts[lowest]}", losses[k])
             cands = [cands[k]]
         checkpoint(cands[0].z)
     for move in phase["end"]:

@@ -23,6 +23,13 @@ class Candidate:
     z: np.ndarray
     settled: frozenset[str] = field(default_factory=frozenset)
     """Counts the views settle (read off class masks, or of sides no view faces): polish leaves them."""
+    keep_facing: bool = False
+    """The twin left unturned where the views' marker asked for a turn: no later reading turns it."""
+    credit: float = 0.0
+    """Evidence the loss does not weigh (the marker's pixel share where the point was turned to it),
+    taken off its loss where it is compared with its twins."""
+    lineage: int = 0
+    """The finalist it came from: twins share it (``ipm.search.loop.twin_choice``)."""
 
 
 def scorer(objective, seeds: tuple[int, ...]) -> Callable[[np.ndarray], float]:

@@ -148,9 +148,9 @@ class Buildings(Generator):
                 for f, (length, origin) in spans.items()}
 
     def marker_extent(self, x):
-        """The door's width and recess (the window inset)."""
+        """The door's width, recess (the window inset) and height."""
         ix = self.spec.index
-        return float(x[ix["door_width"]]), float(x[ix["window_inset"]])
+        return float(x[ix["door_width"]]), float(x[ix["window_inset"]]), float(x[ix["door_height"]])
 
     def sample(self, rng):
         """A random plausible building (the sampler of in-family cases), not a preset: footprint

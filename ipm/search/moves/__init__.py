@@ -5,7 +5,8 @@ it applies to a problem, its cost in evaluations (the progress bar adds them up)
 takes a candidate and a :class:`~ipm.search.trial.Trial`. Phases, in the loop's order:
 
 - ``memetic``: extra runs of the memetic stage, each holding some genes (:meth:`Move.holds`);
-- ``finalist``: each finalist of the memetic stage, at its width (candidate by candidate);
+- ``finalist``: each finalist of the memetic stage, at its width, move by move (a move may return
+  several candidates, twins of one lineage, each refined through the first stage);
 - ``stage``: before every refinement stage, all candidates;
 - ``last``: before the last refinement stage, all candidates, move by move;
 - ``refine``: each candidate just before its Adam run of a stage;
