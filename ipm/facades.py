@@ -102,21 +102,16 @@ def _facade_frames(sides: dict, to_world, views):
     return out
 
 
-def marker_turn(generator, x, to_world, views, marker_masks: np.ndarray) -> float:
+def marker_reading(generator, x, to_world, views, marker_masks: np.ndarray) -> tuple[float, float]:
     """The turn about +y (radians; 0, a quarter or a half) that the views' ``generator.marker``
     class (buildings: the door, on the front only) says the estimate ``x`` posed by ``to_world``
-    needs (:func:`marker_reading`'s first value)."""
-    return marker_reading(generator, x, to_world, views, marker_masks)[0]
-
-
-def marker_reading(generator, x, to_world, views, marker_masks: np.ndarray) -> tuple[float, float]:
-    """The turn :func:`marker_turn` gives and the evidence for it, as a share of the views' pixels:
-    the turn brings the marker's facade to the seen facade that shows most of the marker (the
-    evidence: the marker's pixels), or is a half turn when the views show no marker anywhere
-    though a typical one (the generator's defaults) on the estimate's facade would show
-    (``MARKER_PIXELS`` wide or more past the reveal that hides it at an angle; the evidence: the
-    pixels it would cover). From one view the long sides of a house have one silhouette, and a
-    square house four; where the turn changes the silhouette, the silhouette's pixels outweigh it
+    needs, and the evidence for it, as a share of the views' pixels: the turn brings the marker's
+    facade to the seen facade that shows most of the marker (the evidence: the marker's pixels),
+    or is a half turn when the views show no marker anywhere though a typical one (the
+    generator's defaults) on the estimate's facade would show (``MARKER_PIXELS`` wide or more past
+    the reveal that hides it at an angle; the evidence: the pixels it would cover). From one view
+    the long sides of a house have one silhouette, and a square house four; where the turn
+    changes the silhouette, the reading forks the estimate into both sides
     (``ipm.search.moves.counts``)."""
     sides = generator.facades(x)
     frames = _facade_frames(sides, to_world, views)

@@ -20,7 +20,7 @@ from ipm.generators.buildings.table import ROOF_KINDS
 from ipm.io import load_views
 from ipm.io.semantic import BUILDING_LABELS, load_labels, save_labels
 from ipm.methods import METHODS
-from ipm.facades import count_rows_and_windows, marker_reading, marker_turn, runs
+from ipm.facades import count_rows_and_windows, marker_reading, runs
 from ipm.search.moves import MOVES
 from ipm.search.moves.counts import read_counts_into, turned
 from ipm.search.moves.place import PlaceSettings, sweep_place
@@ -583,23 +583,23 @@ def test_counts_are_read_back_at_the_truths_pose(building_views):
     turned[problem.n_shape] += np.pi  # the door now on the facade away from the camera
     back, changes, _ = read_counts_into(problem, views, turned)
     assert changes[0] == "yaw+180" and np.cos(back[problem.n_shape] - z[problem.n_shape]) == pytest.approx(1.0)
-    assert marker_turn(gen, truth, problem.to_world(z), views, class_masks(gen, views, "door")[0]) == 0.0
+    assert marker_reading(gen, truth, problem.to_world(z), views, class_masks(gen, views, "door")[0])[0] == 0.0
     # a quarter turn with the footprint's sides swapped covers the same ground: the door on the
     # estimate's right side asks for the quarter turn back
     side = problem.clip(np.concatenate([gen.spec.to_unit(gen.quarter_turned(truth)), z[problem.n_shape:]]))
     side[problem.n_shape] -= np.pi / 2
     door = class_masks(gen, views, "door")[0]
-    turn = marker_turn(gen, gen.quarter_turned(truth), problem.to_world(side), views, door)
+    turn = marker_reading(gen, gen.quarter_turned(truth), problem.to_world(side), views, door)[0]
     assert np.degrees(turn) == pytest.approx(90.0)
     # no door in the views, though the estimate's door faces the camera: it is turned away
-    assert marker_turn(gen, truth, problem.to_world(z), views, np.zeros_like(door)) == pytest.approx(np.pi)
+    assert marker_reading(gen, truth, problem.to_world(z), views, np.zeros_like(door))[0] == pytest.approx(np.pi)
     # nor does a door the loss shrank out of sight (narrowest, deepest reveal, seen at 50 degrees)
     # hide the front: the question is whether a typical door would show there
     hidden = truth.copy()
     hidden[ix["door_width"]], hidden[ix["window_inset"]] = gen.spec.lower[ix["door_width"]], gen.spec.upper[ix["window_inset"]]
     aside = problem.initial_z(gen.spec.to_unit(hidden), np.radians(pose["yaw_deg"] + 30.0))
     aside[problem.n_shape + 6] = 0.0
-    assert marker_turn(gen, hidden, problem.to_world(aside), views, np.zeros_like(door)) == pytest.approx(np.pi)
+    assert marker_reading(gen, hidden, problem.to_world(aside), views, np.zeros_like(door))[0] == pytest.approx(np.pi)
 
 
 def test_a_turn_the_door_asks_of_a_finalist_forks_it(building_views):

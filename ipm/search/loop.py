@@ -197,7 +197,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         previous, objective = objective, Objective(problem, views, res, max(loop.refine_lod, least), profile.objective)
         for move in phase["stage"] + (phase["last"] if stage == len(loop.refine_res) - 1 else []):
             cands = run(move, cands, previous if move.steps_before else objective, objective)
-        refined, carried = [], cands
+        refined = []
         for cand in cands:
             for move in phase["refine"]:
                 cand = run(move, [cand], objective, objective)[0]
@@ -205,8 +205,8 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
             objective.rewind()
             ind = Individual(cand.z, problem.key(cand.z), "refine", lr=mem.lr * 0.4)
             adam_steps(ind, iters + 1, objective, problem.clip, mem.reject_ratio, track.on_eval)
-            refined.append(ind.best_z)
-        cands = [replace(c, z=z, settled=frozenset()) for c, z in zip(carried, refined)]
+            refined.append(replace(cand, z=ind.best_z, settled=frozenset()))
+        cands = refined
         if len(refined) > 1:
             score, record = scorer(objective, (10_007, 10_008)), track.recorder("choose", res)
             losses = [score(c.z) for c in cands]

@@ -45,7 +45,7 @@ def turned(problem: Problem, z: np.ndarray, angle: float) -> np.ndarray:
 def read_counts_into(problem: Problem, views: Views, z: np.ndarray,
                      angle: float | None = None) -> tuple[np.ndarray, list[str], frozenset[str]]:
     """``z`` turned by ``angle`` (default: as the views' marker class says it should turn,
-    :func:`facing`), then with the counts the input views' class masks show set to what they
+    :func:`turn_asked`), then with the counts the input views' class masks show set to what they
     show (:func:`ipm.facades.read_counts` on the facades the views face; a storey more or less
     keeps the walls' height: ``change_count``); the changes made; and the counts the views
     settle, for polish to leave: those read (the next reading would set them again) and those of
@@ -55,13 +55,13 @@ def read_counts_into(problem: Problem, views: Views, z: np.ndarray,
     masks = class_masks(gen, views)
     if masks is None or not gen.counts:
         return z, [], frozenset()
-    angle = facing(problem, views, z)[0] if angle is None else angle
+    angle = turn_asked(problem, views, z)[0] if angle is None else angle
     if angle:
         return _counts_read(problem, views, masks[0], turned(problem, z, angle), [f"yaw{np.degrees(angle):+.0f}"])
     return _counts_read(problem, views, masks[0], z, [])
 
 
-def facing(problem: Problem, views: Views, z: np.ndarray) -> tuple[float, float]:
+def turn_asked(problem: Problem, views: Views, z: np.ndarray) -> tuple[float, float]:
     """The turn the views' marker class asks of ``z`` (:func:`ipm.facades.marker_reading`: a door
     on the back or a side) and its evidence, the share of the views' pixels the marker covers;
     (0, 0) where the views have no class masks or the generator no counts or marker."""
@@ -101,7 +101,7 @@ class _Read(Move):
 
     def __call__(self, cand, trial, settings):
         problem, views = trial.problem, trial.views
-        angle, evidence = (0.0, 0.0) if cand.keep_facing else facing(problem, views, cand.z)
+        angle, evidence = (0.0, 0.0) if cand.keep_facing else turn_asked(problem, views, cand.z)
         z, changes, settled = read_counts_into(problem, views, cand.z, angle)
         for change in changes:
             trial.record(change, np.nan)
