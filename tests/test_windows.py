@@ -310,10 +310,10 @@ def test_decide_tries_every_kind_of_roof():
     def lowest_at(value):
         return lambda v, seed=None: ((v[i] * KINDS - value) ** 2, np.zeros_like(v))
 
-    best = decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=2))[0]
+    best = decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=2))
     assert round(best[i] * KINDS) == 2
     np.testing.assert_array_equal(np.delete(best, i), np.delete(z, i))  # no gradient: nothing else moved
-    assert round(decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=0))[0][i] * KINDS) == 0
+    assert round(decide(trial(problem, lowest_at(1), lowest_at(2)), z, roof_settings(decide_steps=0))[i] * KINDS) == 0
 
 
 def test_decide_race_gives_a_descending_candidate_more_steps():
@@ -340,7 +340,7 @@ def test_decide_race_gives_a_descending_candidate_more_steps():
 
     kinds = []
     for rounds in (1, 3):
-        best = decide(trial(problem, walk, score), z, roof_settings(decide_steps=3, decide_rounds=rounds))[0]
+        best = decide(trial(problem, walk, score), z, roof_settings(decide_steps=3, decide_rounds=rounds))
         kinds.append(round(best[i] * KINDS))
     assert kinds == [1, 2]
 
@@ -364,13 +364,13 @@ def test_decide_tries_every_roof_turned_a_quarter_too():
     recounted = []
     prof = roof_settings(decide_steps=2, decide_shares=(), decide_kinds=0)
     best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof,
-                  recount=lambda v: recounted.append(v) or v)[0]
+                  recount=lambda v: recounted.append(v) or v)
     np.testing.assert_allclose(best, want)
     assert len(recounted) == KINDS + 1
     back = gen.spec.from_unit(best[:n])
     assert (back[ix["width"]], back[ix["depth"]]) == pytest.approx((0.8, 1.2))
     assert np.angle(np.exp(1j * (best[n] - z[n]))) == pytest.approx(np.pi / 2)
-    plain = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof)[0]
+    plain = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score), z, prof)
     assert plain[n] == z[n] and round(plain[ix["roof_type"]] * KINDS) == 1
 
 
@@ -390,34 +390,12 @@ def test_decide_ranks_the_kinds_first_and_turns_only_the_best():
 
     prof = roof_settings(decide_steps=1, decide_rounds=1, decide_shares=(0.3,), decide_kinds=2)
     best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
-                        record=lambda name, loss: names.append(name)), z, prof, recount=lambda v: v)[0]
+                        record=lambda name, loss: names.append(name)), z, prof, recount=lambda v: v)
     assert round(best[ix["roof_type"]] * KINDS) == 8
     assert names[:KINDS + 1] == [f"roof_type={k}" for k in range(KINDS + 1)]  # every kind as it stands
     later = names[KINDS + 1:]
     assert later and all(name.startswith(("roof_type=7", "roof_type=8")) for name in later)
     assert {"roof_type=8 turned", "roof_type=8 roof 0.3", "roof_type=7 roof 0.3 turned"} <= set(later)
-
-
-def test_decide_hands_on_the_best_start_of_each_runner_up_kind():
-    """With ``decide_finalists`` the race returns its winner first, then the best start of each
-    next-best kind of its last round (never a second start of a kind already handed on); 1 (the
-    default) hands on the winner alone."""
-    gen = get_generator("buildings")
-    problem = Problem(gen, np.zeros(3), 1.0)
-    i = gen.spec.index["roof_type"]
-    x = gen.presets["house"].copy()
-    x[i] = 0
-    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
-
-    def score(v, seed=None):  # the kinds ranked by their distance from a hip roof (2)
-        return float(abs(round(v[i] * KINDS) - 2)), np.zeros_like(v)
-
-    still = trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score)
-    kinds = [[round(p[i] * KINDS) for p in decide(still, z, roof_settings(decide_steps=1, decide_rounds=1,
-                                                                           decide_finalists=k), recount=lambda v: v)]
-             for k in (1, 3)]
-    assert kinds[0] == [2]
-    assert kinds[1][0] == 2 and sorted(kinds[1][1:]) == [1, 3]
 
 
 def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
@@ -442,7 +420,7 @@ def test_decide_tries_each_pitched_roof_with_the_height_shared_anew():
 
     prof = roof_settings(decide_steps=1, decide_shares=(0.3, 0.6), decide_kinds=0)
     best = decide(trial(problem, lambda v, seed=None: (0.0, np.zeros_like(v)), score,
-                        record=lambda name, loss: names.append(name)), z, prof, recount=lambda v: v)[0]
+                        record=lambda name, loss: names.append(name)), z, prof, recount=lambda v: v)
     assert round(best[ix["roof_type"]] * KINDS) == 2 and share(best) == pytest.approx(0.6)
     candidates = 2 + (KINDS * 3) * 2  # flat as it stands and turned; each pitched kind, with two shares, and turned
     first = names[:candidates]

@@ -146,7 +146,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         """The input-view IoU of the current stage's best, on the stage's last trace row."""
         ious[len(track.rows) - 1] = input_iou(problem, views, z, max(loop.refine_lod, least))
 
-    def run(move, cands: list[Candidate], steps, score, iters: int = loop.refine_iterations[0]) -> list[Candidate]:
+    def run(move, cands: list[Candidate], steps, score) -> list[Candidate]:
         label = move.label or move.name
         track.enter(label, steps.width)
         trial = Trial(problem, steps, score, mem.lr, mem.reject_ratio, views, profile, track.on_eval,
@@ -155,8 +155,8 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         for c in cands:
             steps.rewind()  # each candidate's steps draw the same seeds, whatever ran before
             moved = move(c, trial, profile.of(move.settings) if move.settings else None)
-            if isinstance(moved, list):  # a fork: each twin refined through the stage
-                track.extend((len(moved) - 1) * (iters + 1))
+            if isinstance(moved, list):  # a fork: each twin refined through the first stage
+                track.extend((len(moved) - 1) * (loop.refine_iterations[0] + 1))
                 out += moved
             else:
                 out.append(moved)
@@ -196,7 +196,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     for stage, (res, iters) in enumerate(zip(loop.refine_res, loop.refine_iterations)):
         previous, objective = objective, Objective(problem, views, res, max(loop.refine_lod, least), profile.objective)
         for move in phase["stage"] + (phase["last"] if stage == len(loop.refine_res) - 1 else []):
-            cands = run(move, cands, previous if move.steps_before else objective, objective, iters)
+            cands = run(move, cands, previous if move.steps_before else objective, objective)
         refined = []
         for cand in cands:
             for move in phase["refine"]:

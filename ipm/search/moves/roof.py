@@ -5,7 +5,7 @@ A generator that lists this move has ``categorical`` parameters and ``split_roof
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Annotated
 
 import numpy as np
@@ -37,10 +37,6 @@ class RoofSettings(Settings):
     """Where a categorical parameter has more values than this, a first round gives every value as it stands
     ``decide_steps``, and only the best ``decide_kinds`` go on to be tried turned and with the height shares;
     0: every value with its turns and shares from the start (docs/decisions.md, 'Roof race')."""
-    decide_finalists: Annotated[int, at_least(1)] = 1
-    """Values the race hands on: the winner and the best start of each of the next values (by their
-    last round's loss), each taken through the rest of the last stage (sweeps, Adam) as a twin,
-    the lowest loss after it kept; 1: the winner alone (docs/decisions.md, 'Roof race')."""
 
 
 def decide_evaluations(candidates: int, settings: RoofSettings, values: int | None = None) -> int:
@@ -56,7 +52,7 @@ def decide_evaluations(candidates: int, settings: RoofSettings, values: int | No
     return total
 
 
-def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> list[np.ndarray]:
+def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.ndarray:
     """Every value of each categorical parameter (a roof's type) given ``decide_steps`` Adam steps
     from ``z``, the current value too (none is favoured by a longer refinement), and compared under
     the trial's score (same render seeds): the lowest wins. Polish's few steps at the memetic
@@ -70,13 +66,10 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> list[n
     ends. With ``decide_shares`` each value (and each turned) also starts with the height shared
     anew between roof and walls (``split_roof``). With ``decide_kinds`` below the number of values
     (nine roof kinds), a first round ranks the values as they stand and only the best go on to
-    their turns and shares. Returns the winner first, then with ``decide_finalists`` above 1 the best
-    start of each runner-up value of the last round (a race of 30-step runs ranks values that a
-    full stage tells apart by several times their loss)."""
+    their turns and shares."""
     problem = trial.problem
     spec, n, gen = problem.spec, problem.n_shape, problem.generator
     score = trial.scorer((10_005, 10_006))
-    others = []
     for name in gen.categorical:
         i, on = spec.index[name], gen.active(spec.from_unit(z[:n]))
         if settings.decide_steps <= 0 or not on[i]:
@@ -99,18 +92,8 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> list[n
                                                 for share, x in splits if x is not None]:
                 pool += [(tag, start)] + ([(f"{tag} turned", recount(turned(problem, start, np.pi / 2)))]
                                           if recount is not None else [])
-        last = trial.rounds(pool, settings.decide_steps, settings.decide_rounds, score)
-        z, seen = last[0][1], {_value(spec, last[0][1], i)}
-        for _, point, _ in last[1:]:
-            if len(seen) < settings.decide_finalists and _value(spec, point, i) not in seen:
-                seen.add(_value(spec, point, i))
-                others.append(point)
-    return [z] + others
-
-
-def _value(spec, z: np.ndarray, i: int) -> int:
-    """The level of the discrete parameter ``i`` at unit point ``z``."""
-    return int(round(float(z[i]) * (spec.levels[i] - 1)))
+        z = trial.rounds(pool, settings.decide_steps, settings.decide_rounds, score)[0][1]
+    return z
 
 
 @register
@@ -136,8 +119,5 @@ class RoofRace(Move):
         if self.turns(trial.problem, trial.profile):
             recount = ((lambda z: read_counts_into(trial.problem, trial.views, z)[0]) if reads(trial.profile)
                        else (lambda z: z))
-        points = decide(trial, cand.z, settings, recount)
-        if len(points) == 1:
-            cand.z = points[0]
-            return cand
-        return [replace(cand, z=point, credit=0.0) for point in points]  # twins: the stage's choice keeps one
+        cand.z = decide(trial, cand.z, settings, recount)
+        return cand
