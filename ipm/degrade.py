@@ -37,13 +37,20 @@ def shift_edge(mask: np.ndarray, pixels: float) -> np.ndarray:
 def ragged_edge(mask: np.ndarray, amplitude: float, rng: np.random.Generator, scale: float = 6.0) -> np.ndarray:
     """The edge moved in and out along its length by smooth noise of about ``amplitude`` pixels
     (standard deviation), varying over ``scale`` pixels, as a careless brush or a coarse
-    segmentation leaves it."""
+    segmentation leaves it; the mask keeps its area."""
     from scipy import ndimage
 
     mask = np.asarray(mask, bool)
     noise = ndimage.gaussian_filter(rng.standard_normal(mask.shape), scale)
     noise *= amplitude / max(float(noise.std()), 1e-12)
-    return _signed_distance(mask) + noise > 0.5
+    # The noisy distance's level set that keeps the mask's area: the edge moves out as much as in
+    # (a fixed level would move it in by about half a pixel, the rim's distances being +1 and -1).
+    value = (_signed_distance(mask) + noise).ravel()
+    area = int(mask.sum())
+    if area == 0:
+        return mask.copy()
+    level = np.partition(value, value.size - area)[value.size - area]
+    return (value >= level).reshape(mask.shape)
 
 
 def hole(mask: np.ndarray, share: float = 0.5) -> np.ndarray:

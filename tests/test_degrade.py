@@ -25,6 +25,15 @@ def test_a_ragged_edge_moves_the_edge_both_ways_by_about_its_amplitude():
     np.testing.assert_array_equal(out, ragged_edge(mask, 2.0, np.random.default_rng(0)))  # seeded
 
 
+def test_a_ragged_edge_keeps_the_area():
+    mask = disk(60.0)
+    for seed in range(4):
+        out = ragged_edge(mask, 2.0, np.random.default_rng(seed))
+        assert out.sum() == mask.sum()  # moved as far out as in, not inwards by the rounding
+        assert 0.9 < (out & mask).sum() / (out | mask).sum() < 0.99
+    np.testing.assert_array_equal(ragged_edge(mask, 1e-9, np.random.default_rng(0)), mask)
+
+
 def test_a_hole_is_cut_at_the_deepest_point_inside_the_mask():
     mask = disk(40.0)
     out = hole(mask, 0.5)
