@@ -1,7 +1,6 @@
 """Masks from the image: for an object photographed on a plain background, by colour alone (no
 model weights, :func:`mask_from_image`); for a photograph with a ground, a shadow and a backdrop,
-by the learned segmenter refined by GrabCut (:func:`mask_from_photo`); a mask given with its image,
-its edge set again by the image (:func:`refine_mask`).
+by the learned segmenter refined by GrabCut (:func:`mask_from_photo`).
 
 A colour model of the background is fitted to the image's border (mean and covariance in CIELAB,
 refitted without the border pixels that look least like it, where the object touches the edge);
@@ -108,64 +107,3 @@ def mask_from_photo(rgb: np.ndarray, model=None) -> np.ndarray:
     cv2.setRNGSeed(0)
     cv2.grabCut(img8, gc, None, bgd, fgd, 5, cv2.GC_INIT_WITH_MASK)
     return _cleaned((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD))
-
-
-BINS = 16
-"""Bins a colour channel's histogram has in :func:`refine_mask`'s colour models."""
-
-
-def refine_mask(rgb: np.ndarray, mask: np.ndarray, band: float) -> np.ndarray:
-    """``mask`` (H, W) with its edge set again by the image ``rgb`` (H, W, 3; uint8, or float in [0,
-    1]) within ``band`` pixels of it. The colours further inside and further outside make the
-    object's and the background's colour histograms; a pixel in the band is object where its
-    colour's log-likelihood ratio outweighs the given mask, one nat a pixel of its distance to the
-    given edge (a hole the mask encloses counts as band); where the edge moved, each pixel by the
-    new edge is unmixed (:func:`_unmixed_edge`). Float32 in {0, 1}."""
-    from scipy import ndimage
-
-    mask = np.asarray(mask) > 0.5
-    rgb = np.asarray(rgb)
-    if rgb.shape[:2] != mask.shape or rgb.ndim != 3 or rgb.shape[2] < 3:
-        raise UserError(f"cannot refine a mask of shape {mask.shape} by an image of shape {rgb.shape}")
-    img8 = np.ascontiguousarray(rgb[..., :3] if rgb.dtype == np.uint8 else
-                                np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
-    inside, outside = ndimage.distance_transform_edt(mask), ndimage.distance_transform_edt(~mask)
-    labels, _ = ndimage.label(~mask)
-    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    holes = ~mask & ~np.isin(labels, edge[edge > 0])  # background the mask encloses
-    sure_fg, sure_bg = inside > band, (outside > band) & ~holes
-    if not sure_fg.any() or not sure_bg.any():
-        return mask.astype(np.float32)
-    codes = (img8 // (256 // BINS)).astype(np.int64) @ np.array([BINS * BINS, BINS, 1])
-    fg = np.bincount(codes[sure_fg], minlength=BINS**3)
-    bg = np.bincount(codes[sure_bg], minlength=BINS**3)
-    fg, bg = (fg + fg.sum() / fg.size) / (2 * fg.sum()), (bg + bg.sum() / bg.size) / (2 * bg.sum())
-    odds = np.clip(np.log(fg) - np.log(bg), -10.0, 10.0)[codes]  # 0 for a colour neither side shows
-    prior = np.where(mask, inside - 0.5, np.where(holes, 0.0, 0.5 - outside))
-    out = np.where(sure_fg | sure_bg, mask, ndimage.median_filter((odds + prior > 0).astype(np.uint8), 3) > 0)
-    moved = ndimage.binary_dilation(out != mask, iterations=2)  # where the edge moved: its new rim unmixed
-    return np.where(moved, _unmixed_edge(img8, out), out).astype(np.float32)
-
-
-def _unmixed_edge(img8: np.ndarray, seg: np.ndarray, reach: float = 3.0, contrast: float = 0.02) -> np.ndarray:
-    """``seg`` with each pixel by its edge (within one pixel of it) object where the object covers
-    at least half of it: its linear colour unmixed between the nearest pixel at least two pixels
-    inside and the nearest two outside (both within ``reach``, their colours at least ``contrast``
-    apart), as a renderer's or a camera's pixel mixes them (a colour model gives a mixed pixel to
-    the side whose colours it is nearer)."""
-    from scipy import ndimage
-
-    lin = (img8.astype(np.float64) / 255.0) ** 2.2
-    core = ndimage.binary_erosion(seg, iterations=2)
-    back = ndimage.binary_erosion(~seg, iterations=2, border_value=1)
-    rim = ndimage.binary_dilation(seg) & ~ndimage.binary_erosion(seg)
-    d_in, (iy, ix) = ndimage.distance_transform_edt(~core, return_indices=True)
-    d_out, (oy, ox) = ndimage.distance_transform_edt(~back, return_indices=True)
-    ys, xs = np.nonzero(rim & (d_in <= reach) & (d_out <= reach))
-    f, b, c = lin[iy[ys, xs], ix[ys, xs]], lin[oy[ys, xs], ox[ys, xs]], lin[ys, xs]
-    span = np.einsum("ni,ni->n", f - b, f - b)
-    alpha = np.einsum("ni,ni->n", c - b, f - b) / np.maximum(span, 1e-12)
-    ok = span > contrast**2
-    out = seg.copy()
-    out[ys[ok], xs[ok]] = alpha[ok] >= 0.5
-    return out
