@@ -1,7 +1,8 @@
 """Buildings of the shapes real ones take and the buildings generator does not make, for the test
 split's out-of-family cases (a U-shaped block round a courtyard, a cross-gabled house, a barn under
 a gambrel roof and a tower under a pyramidal roof) and the dev split's (a house under a mansard
-roof, a saltbox house, a gabled farmhouse whose wing makes an L). Independent code as in
+roof, a saltbox house, a gabled farmhouse whose wing makes an L, a pavilion on a plinth under a
+pyramidal roof). Independent code as in
 :mod:`datasets_synthetic.recipes` (boxes and convex hulls, no generator code), registered in its
 ``RECIPES``; each part closed, wound outwards; labels wall, window, roof, door."""
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from datasets_synthetic.more_recipes import _centred
-from datasets_synthetic.recipes import RECIPES, _box, _door, _facade_openings, _gable_roof, _hull
+from datasets_synthetic.recipes import RECIPES, _box, _door, _facade_openings, _gable_roof, _hip_roof, _hull
 from ipm.io.semantic import BUILDING_LABELS
 
 
@@ -208,3 +209,21 @@ def l_farmhouse(width=1.4, depth=0.7, floors=2, storey=0.31, roof_height=0.36, w
 
 
 l_farmhouse.semantic_labels = BUILDING_LABELS
+
+
+@RECIPES.register("plinth_pavilion")
+def plinth_pavilion(width=1.0, depth=1.0, floors=2, storey=0.32, plinth=0.1, plinth_out=0.03, roof_height=0.5,
+                    overhang=0.07, window=(0.12, 0.17), spacing=0.25, sill=0.09, door=(0.16, 0.26)):
+    """A pavilion or tower: a block of ``floors`` storeys standing on a plinth ``plinth`` high that
+    juts ``plinth_out`` beyond its walls, under a hip roof whose ridge shrinks to a point where the
+    plan is square (a pyramidal roof); windows on every storey of every wall, a door in the front
+    (boxes and convex hulls; no generator code)."""
+    hx, hz, h = 0.5 * width, 0.5 * depth, plinth + floors * storey
+    walls = [_box([-hx - plinth_out, 0, -hz - plinth_out], [hx + plinth_out, plinth, hz + plinth_out]),
+             _box([-hx, plinth - 0.01, -hz], [hx, h, hz])]
+    roofs = [_hip_roof(-hx, hx, -hz, hz, h, roof_height, overhang)]
+    panes = [p.apply_translation([0.0, plinth, 0.0]) for p in _box_facades(hx, hz, floors, storey, window, spacing, sill)]
+    return _centred(walls, roofs, panes, _door([0.0, plinth, hz], door))
+
+
+plinth_pavilion.semantic_labels = BUILDING_LABELS
