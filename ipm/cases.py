@@ -203,6 +203,32 @@ def describe_cases(split: str | None = None) -> str:
     return "\n".join(lines)
 
 
+def expand_groups(config: dict) -> dict:
+    """A workflow config's ``cases`` and ``methods`` with its case groups written out: ``groups``
+    names lists of cases or of other groups, and a group's name in ``cases`` or in a methods
+    entry's ``cases`` stands for its cases, in order, each case once (``ValueError`` for a group
+    named like a case or one that contains itself)."""
+    from ipm.synth import list_cases
+
+    groups = config.get("groups") or {}
+    clash = sorted(set(groups) & set(list_cases()))
+    if clash:
+        raise ValueError(f"config: groups {', '.join(clash)} are named like cases; rename them")
+
+    def names(items, inside=()):
+        out = []
+        for item in items:
+            if item in inside:
+                raise ValueError(f"config: group {item} contains itself ({' -> '.join(inside + (item,))})")
+            for case in names(groups[item], inside + (item,)) if item in groups else [item]:
+                if case not in out:
+                    out.append(case)
+        return out
+
+    methods = [{**m, "cases": names(m["cases"])} if "cases" in m else m for m in config.get("methods", [])]
+    return {"cases": names(config["cases"]), "methods": methods}
+
+
 def write_sampled_cases(folder: str | Path) -> list[Path]:
     """Write the :data:`SAMPLED` cases as ``folder/NAME.json``."""
     from ipm.io import write_json

@@ -206,3 +206,27 @@ def test_reseeded_truth_line_is_the_truth_with_another_random_stream(tmp_path):
     with pytest.raises(UserError, match="does not apply"):
         write_reference_line("reseeded_truth", str(tmp_path / "cup" / "reference.ply"), str(tmp_path / "y"),
                              truth=str(tmp_path / "cup" / "ground_truth.json"))
+
+
+def test_case_groups_stand_for_their_cases_in_order_each_once():
+    """A workflow config's ``groups``: a name in ``cases`` or a row's ``cases`` becomes its cases
+    (groups of groups too), in order, each case once; rows without a list keep none."""
+    from ipm.cases import expand_groups
+
+    config = {"groups": {"cups": ["cup_1", "cup_2"], "some": ["cups", "tree_1"], "more": ["cup_2", "building_1"]},
+              "cases": ["some", "more", "cup_ext"],
+              "methods": [{"name": "diff", "views": 1, "cases": ["more", "cups"]}, {"name": "visual_hull", "views": 2}]}
+    out = expand_groups(config)
+    assert out["cases"] == ["cup_1", "cup_2", "tree_1", "building_1", "cup_ext"]
+    assert out["methods"] == [{"name": "diff", "views": 1, "cases": ["cup_2", "building_1", "cup_1"]},
+                              {"name": "visual_hull", "views": 2}]
+    assert expand_groups({"cases": ["cup_1"]}) == {"cases": ["cup_1"], "methods": []}
+
+
+@pytest.mark.parametrize("groups, match", [({"cup_1": ["cup_2"]}, "named like cases"),
+                                           ({"a": ["b"], "b": ["cup_1", "a"]}, "contains itself")])
+def test_a_group_named_like_a_case_or_containing_itself_is_refused(groups, match):
+    from ipm.cases import expand_groups
+
+    with pytest.raises(ValueError, match=match):
+        expand_groups({"groups": groups, "cases": ["a" if "a" in groups else "cup_1"]})

@@ -5,6 +5,10 @@ from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml", set_default=True)
 
+from ipm.cases import expand_groups
+
+config.update(expand_groups(config))  # a group's name in a cases list stands for its cases
+
 from ipm.methods import METHODS, row_label
 from ipm.reference_lines import REFERENCE_LINES
 
