@@ -231,3 +231,30 @@ def test_the_image_shading_tells_the_handle_s_side_and_turn(mitsuba_cpu):
         maps = [surface_maps(problem, z, 1, views) for z in [truth] + others]
         residuals = shading_residuals(photo @ LUMINANCE, (part >= 0).astype(float), maps)
         assert residuals[0] < min(residuals[1:]), (turn, residuals)
+
+
+def test_the_progress_bar_plans_every_phase_s_moves_on_the_candidates_it_sees(mug_view):
+    """The planned evaluations count a move's cost once per candidate its phase sees: the
+    finalists' moves and the first stage's on every finalist, the later stages' on the one left,
+    the last and end phases' once."""
+    from ipm.search.loop import planned_evaluations
+    from ipm.search.moves import PHASES
+
+    class Costly(Move):
+        def __init__(self, phase, n):
+            self.phase, self.n = phase, n
+
+        def cost(self, problem, profile):
+            return self.n
+
+    problem, _ = mug_view
+    profile = get_profile("smoke", refine_candidates=3, refine_res=(32, 48), refine_iterations=(2, 5))
+    none = {p: [] for p in PHASES}
+    base = planned_evaluations(problem, profile, profile.memetic, none, 1)
+    mem = profile.memetic
+    assert base == mem.ga_iterations * (mem.adam_per_iteration + mem.population) + 3 * (2 + 1) + (5 + 1)
+    seen = {"finalist": 3, "stage": 3 + 1, "refine": 3 + 1, "last": 1, "end": 1}
+    for name, k in seen.items():
+        assert planned_evaluations(problem, profile, mem, {**none, name: [Costly(name, 7)]}, 1) == base + 7 * k, name
+    assert planned_evaluations(problem, profile, mem, none, 2) == base + mem.ga_iterations * (
+        mem.adam_per_iteration + mem.population)

@@ -124,6 +124,22 @@ def input_iou(problem: Problem, views: Views, z: np.ndarray, lod: int, res: int 
     return float(view_ious(resize_masks(views.masks, res) > 0.5, rec).mean())
 
 
+def planned_evaluations(problem: Problem, profile, mem, phase: dict, runs: int) -> int:
+    """The evaluations a fit plans (its progress bar's total): ``runs`` memetic stages of ``mem``,
+    each move's cost (``Move.cost``) on the candidates its phase sees, the refinement stages'
+    steps; forks and stages the search adds as it goes extend it then."""
+    loop = profile.loop
+
+    def cost(name: str) -> int:
+        return sum(m.cost(problem, profile) for m in phase[name])
+
+    seen = [loop.refine_candidates] + [1] * (len(loop.refine_res) - 1)  # candidates in each refinement stage
+    return (runs * mem.ga_iterations * (mem.adam_per_iteration + mem.population)
+            + loop.refine_candidates * cost("finalist")
+            + sum(k * (cost("stage") + cost("refine") + steps + 1) for k, steps in zip(seen, loop.refine_iterations))
+            + seen[-1] * cost("last") + cost("end"))
+
+
 def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress: bool = True,
                 start=preset_start) -> tuple[np.ndarray, pd.DataFrame]:
     """Best ``z`` for ``views`` under ``profile`` (``ipm.profiles.DiffProfile``) and the trace (one row
@@ -135,10 +151,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     moves = [m for m in moves_for(problem) if m.applies(problem, profile)]
     phase = {p: [m for m in moves if m.phase == p] for p in PHASES}
     holds = [{}] + [h for m in phase["memetic"] for h in m.holds(problem, profile)]
-    total = (len(holds) * mem.ga_iterations * (mem.adam_per_iteration + mem.population)
-             + sum(loop.refine_iterations) + len(loop.refine_res)
-             + sum(m.cost(problem, profile) for m in phase["last"])
-             + (loop.refine_candidates - 1) * (loop.refine_iterations[0] + 1))
+    total = planned_evaluations(problem, profile, mem, phase, len(holds))
     track, rng, least = Tracker(total, progress), np.random.default_rng(seed), problem.generator.min_fit_lod
     ious = {}
 
