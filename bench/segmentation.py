@@ -1,15 +1,17 @@
 """Benchmark: masks from a photograph. Each case is rendered as a photograph (``ipm.render.photo_scene``:
 sky, sun, its shadow on a ground) on every backdrop, from its input camera, with the case's
 photo setting (``ipm.synth.photo_setting``: scene seed, texture or plain colour), and JPEG at the
-photo layout's quality; each segmenter's mask is scored by its IoU with the true mask, per case and
+photo layout's quality (with ``--plain``: the ``hemi`` layout's input view instead, the object on
+a plain background); each segmenter's mask is scored by its IoU with the true mask, per case and
 backdrop, with the means per class and family.
 
     .venv/bin/python bench/segmentation.py [--cases cup_1 building_1] [--res 256] [--spp 128]
-        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...]
+        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...] [--plain]
 
 Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border),
-``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut) and, for each
-``--weights`` file, ``learned:STEM`` (the same with those weights), all on the same photographs.
+``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut), ``network``
+(the shipped network's probability above 0.5, no GrabCut) and, for each ``--weights`` file,
+``learned:STEM`` and ``network:STEM`` (the same with those weights), all on the same photographs.
 Tune nothing on test cases: the defaults are the dev cups and buildings.
 """
 from __future__ import annotations
@@ -41,6 +43,24 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     return jpeg_roundtrip(srgb_bytes(linear[0]), PHOTO_QUALITY), masks[0] > 0.5
 
 
+def plain_view(case: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
+    """The case's input view of the ``hemi`` layout (its reference materials on a plain background,
+    as synth writes it: 8-bit sRGB, no alpha) and its true mask."""
+    from ipm.io.views import srgb_bytes
+    from ipm.render.silhouette import SilhouetteRenderer
+    from ipm.render.textured import render_painted
+    from ipm.synth import case_fov, ground_truth_mesh, load_case, reference_appearance, view_cameras
+
+    spec = load_case(case)
+    v, f, labels, uv = ground_truth_mesh(spec)
+    lo, hi = v.min(0), v.max(0)
+    cam, fov = spec.get("camera", {}), case_fov(spec)
+    c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
+                       cam.get("elevation_deg", 22.0), "hemi", fov)
+    rgb = render_painted(v, f, labels, uv, reference_appearance(spec, v, f, labels, uv), c2w, fov, res, res, spp)
+    return srgb_bytes(rgb[0]), SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)[0] > 0.5
+
+
 def score(mask: np.ndarray, truth: np.ndarray) -> float:
     """The IoU of ``mask > 0.5`` with the true mask."""
     from ipm.metrics.silhouette import view_ious
@@ -65,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     from ipm.io import write_json
     from ipm.render.photo_scene import BACKDROPS
     from ipm.runtime import configure_threads, set_mitsuba_variant
-    from ipm.learned.segmenter import load
+    from ipm.learned.segmenter import load, probability
     from ipm.segment import mask_from_image, mask_from_photo
     from ipm.synth import load_case
 
@@ -76,17 +96,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="results/bench/segmentation.json")
     ap.add_argument("--weights", nargs="*", default=[], help="other weights of the learned segmenter to score beside "
                     "the shipped ones")
+    ap.add_argument("--plain", action="store_true", help="score the hemi layout's input view (a plain background) "
+                    "instead of the photographs")
     args = ap.parse_args(argv)
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)
-    segmenters = {"colour": mask_from_image, "learned": mask_from_photo}
+    segmenters = {"colour": mask_from_image, "learned": mask_from_photo,
+                  "network": lambda img: (probability(img) > 0.5).astype(np.float32)}
     for path in args.weights:
         segmenters[f"learned:{Path(path).stem}"] = lambda img, model=load(path): mask_from_photo(img, model)
+        segmenters[f"network:{Path(path).stem}"] = lambda img, model=load(path): (
+            probability(img, model) > 0.5).astype(np.float32)
     rows = []
     for case in tqdm(args.cases, desc="cases"):
         spec = load_case(case)
-        for backdrop in BACKDROPS:
-            rgb, truth = photograph(case, backdrop, args.res, args.spp)
+        for backdrop in ("plain",) if args.plain else BACKDROPS:
+            rgb, truth = plain_view(case, args.res, args.spp) if args.plain else photograph(case, backdrop, args.res,
+                                                                                            args.spp)
             row = {"case": case, "backdrop": backdrop, "class": "cups" if spec["generator"] == "dishes" else "buildings",
                    "family": "in" if "generator" in spec["source"] else "out"}
             for name, fn in segmenters.items():

@@ -131,40 +131,53 @@ def test_the_photo_layout_refuses_trees(tmp_path, mitsuba_cpu):
 
 
 @pytest.mark.slow
-def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu):
-    """Two training photos (a cup and a building on random grounds): uint8 images at the network's
-    size, masks that cover part of the frame, and the object's pixels unlike the ground's."""
+def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu, tmp_path):
+    """Three training photos (a cup and two buildings on random grounds): JPEG files of the
+    network's size, masks that cover part of the frame, the object's pixels unlike the ground's;
+    ranges rendered apart and stored join into the same photos."""
     from ipm.learned.segmenter import SEG_RES
-    from ipm.learned.segmenter_training import make_photos
+    from ipm.learned.segmenter_training import decoded, load_photos, make_photos, save_photos
 
-    data = make_photos(2, seed=5, spp=4)
-    assert data["image"].shape == (2, SEG_RES, SEG_RES, 3) and data["image"].dtype == np.uint8
-    assert data["mask"].shape == (2, SEG_RES, SEG_RES)
-    for image, mask in zip(data["image"].astype(float), data["mask"]):
+    data = make_photos(3, seed=5, spp=4)
+    images = decoded(data)
+    assert images.shape == (3, SEG_RES, SEG_RES, 3) and images.dtype == np.uint8
+    assert data["mask"].shape == (3, SEG_RES, SEG_RES)
+    for image, mask in zip(images.astype(float), data["mask"]):
         assert 0.02 < mask.mean() < 0.8
         assert np.abs(image[mask].mean(0) - image[~mask].mean(0)).max() > 2
-    again = make_photos(2, seed=5, spp=4)
-    assert np.array_equal(again["mask"], data["mask"])  # seeded: the same objects and views
+    later = make_photos(2, seed=5, spp=4, start=1)  # a range made apart is the same photos
+    assert np.array_equal(later["mask"], data["mask"][1:]) and later["jpeg"] == data["jpeg"][1:]
+    save_photos(tmp_path / "a.npz", make_photos(1, seed=5, spp=4))
+    save_photos(tmp_path / "b.npz", later)
+    joined = load_photos(tmp_path / "a.npz", tmp_path / "b.npz")
+    assert joined["jpeg"] == data["jpeg"] and np.array_equal(joined["mask"], data["mask"])
+    (tmp_path / "bad.npz").write_text("not photos")
+    with pytest.raises(UserError, match="unreadable training photos"):
+        load_photos(tmp_path / "bad.npz")
 
 
 @pytest.mark.slow
-def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu):
-    """A few steps on four photos lower the loss; the weights written and read back give the same
-    probabilities; a file of another kind is one clear error."""
+def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu, monkeypatch):
+    """A few steps on four photos lower the loss; the weights written and read back (a narrower
+    network than the shipped one: its size comes from the file) give the same probabilities; a
+    file of another kind is one clear error."""
     import jax
 
+    from ipm.learned import segmenter_training
     from ipm.learned.network import save
     from ipm.learned.segmenter import FORMAT, load, probabilities
-    from ipm.learned.segmenter_training import PROFILES, fit, make_photos
+    from ipm.learned.segmenter_training import PROFILES, decoded, fit, make_photos
 
+    monkeypatch.setattr(segmenter_training, "WIDTHS", (8, 16, 16))
     settings = PROFILES["smoke"].updated(steps=30, samples=4, held_out=0, learning_rate=3e-3)
     data = make_photos(4, seed=1, spp=4)
     model, meta = fit(settings, 0, data=data)
     first = fit(settings.updated(steps=1), 0, data=data)[1]["final_loss"]
-    assert meta["final_loss"] < first
+    assert meta["final_loss"] < first and meta["widths"] == [8, 16, 16]
     save(model, tmp_path / "seg.json", meta, FORMAT)
     back = load(str(tmp_path / "seg.json"))
-    p1, p2 = probabilities(model, data["image"]), probabilities(back, data["image"])
+    images = decoded(data)
+    p1, p2 = probabilities(model, images), probabilities(back, images)
     assert p1.shape == data["mask"].shape and np.abs(p1 - p2).max() < 2e-2  # float16 storage
     assert jax.tree_util.tree_structure(model) == jax.tree_util.tree_structure(back)
     (tmp_path / "bad.json").write_text('{"format": "ipm-learned-regressor/1"}')

@@ -294,6 +294,12 @@ def test_polish_steps_window_counts_and_turns(variant):
     held = polish(trial(problem, objective), z, PolishSettings(polish_sweeps=3, polish_steps=1),
                   settled=frozenset({"windows_front"}))
     assert round(held[i] * 8) == 6 and np.cos(held[problem.n_shape] - target_yaw) == pytest.approx(1.0)
+    # what it tells the progress bar adds up to the evaluations it spent, first said as a bound
+    planned, spent = [], []
+    counted = Trial(problem, objective, objective, lr=0.05, reject_ratio=1.2, on_eval=lambda ind: spent.append(1),
+                    plan=planned.append)
+    polish(counted, z, PolishSettings(polish_sweeps=3, polish_steps=2))
+    assert len(spent) > 0 and sum(planned) == len(spent) and planned[0] >= len(spent) / 3
 
 
 def test_decide_tries_every_kind_of_roof():

@@ -331,13 +331,25 @@ def srgb_bytes(rgb: np.ndarray) -> np.ndarray:
     return (srgb * 255 + 0.5).astype(np.uint8)
 
 
-def jpeg_roundtrip(rgb8: np.ndarray, quality: int) -> np.ndarray:
-    """An 8-bit RGB image as it reads back after JPEG compression at ``quality``."""
+def jpeg_bytes(rgb8: np.ndarray, quality: int) -> bytes:
+    """An 8-bit RGB image compressed as a JPEG file at ``quality``."""
     import io
 
     buf = io.BytesIO()
     Image.fromarray(rgb8).save(buf, format="JPEG", quality=int(quality))
-    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"))
+    return buf.getvalue()
+
+
+def jpeg_decode(data: bytes) -> np.ndarray:
+    """The 8-bit RGB image (H, W, 3) a JPEG file's bytes hold."""
+    import io
+
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+
+def jpeg_roundtrip(rgb8: np.ndarray, quality: int) -> np.ndarray:
+    """An 8-bit RGB image as it reads back after JPEG compression at ``quality``."""
+    return jpeg_decode(jpeg_bytes(rgb8, quality))
 
 
 def save_texture(path: str | os.PathLike, image: np.ndarray) -> None:

@@ -14,31 +14,33 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-SEG_RES = 96
-"""Width and height (pixels) of the network's input and output."""
-WIDTHS = (16, 32, 64, 64)
-"""Channels of the encoder's four levels (full, 1/2, 1/4, 1/8 resolution)."""
+SEG_RES = 128
+"""Width and height (pixels) of the shipped network's input and output."""
+WIDTHS = (24, 48, 96, 160, 192)
+"""Channels of the shipped network's encoder levels (full resolution, then halved at each level)."""
 FORMAT = "ipm-segmenter/1"
 
 
 class UNet(eqx.Module):
-    """Photo (3, R, R) in [-0.5, 0.5] -> object logits (R, R): a four-level encoder of 3 x 3
-    convolutions (stride 2 between levels) and a decoder that upsamples and joins each level's
-    features, R a multiple of 8."""
+    """Photo (3, R, R) in [-0.5, 0.5] -> object logits (R, R): an encoder of 3 x 3 convolutions
+    (stride 2 between levels, ``widths`` channels) and a decoder that upsamples and joins each
+    level's features; ``res`` (a multiple of 2 ** (levels - 1)) is the size it reads photos at."""
 
     down: list
     up: list
     out: eqx.nn.Conv2d
+    res: int = eqx.field(static=True)
 
-    def __init__(self, key):
-        keys = iter(jax.random.split(key, 2 * len(WIDTHS) + len(WIDTHS)))
-        widths = (3,) + WIDTHS
+    def __init__(self, key, widths: tuple = WIDTHS, res: int = SEG_RES):
+        keys = iter(jax.random.split(key, 3 * len(widths)))
+        chans = (3,) + tuple(widths)
         self.down = [[eqx.nn.Conv2d(a, b, 3, stride=1 if i == 0 else 2, padding=1, key=next(keys)),
                       eqx.nn.Conv2d(b, b, 3, padding=1, key=next(keys))]
-                     for i, (a, b) in enumerate(zip(widths[:-1], widths[1:]))]
-        self.up = [eqx.nn.Conv2d(WIDTHS[i + 1] + WIDTHS[i], WIDTHS[i], 3, padding=1, key=next(keys))
-                   for i in range(len(WIDTHS) - 1)]
-        self.out = eqx.nn.Conv2d(WIDTHS[0], 1, 1, key=next(keys))
+                     for i, (a, b) in enumerate(zip(chans[:-1], chans[1:]))]
+        self.up = [eqx.nn.Conv2d(widths[i + 1] + widths[i], widths[i], 3, padding=1, key=next(keys))
+                   for i in range(len(widths) - 1)]
+        self.out = eqx.nn.Conv2d(widths[0], 1, 1, key=next(keys))
+        self.res = int(res)
 
     def __call__(self, image):
         skips, h = [], image
@@ -80,17 +82,19 @@ def load(path: str | None = None) -> UNet:
     """The segmenter from ``path``, else the shipped one (``UserError`` if missing or malformed)."""
     from ipm.learned.network import load_model
 
-    model, _ = load_model(path or shipped_path(), FORMAT, "a segmenter's", lambda r: UNet(jax.random.PRNGKey(0)))
+    model, _ = load_model(path or shipped_path(), FORMAT, "a segmenter's",
+                          lambda r: UNet(jax.random.PRNGKey(0), tuple(r["widths"]), r["res"]))
     return model
 
 
 def probability(img8: np.ndarray, model: UNet | None = None) -> np.ndarray:
-    """The object probability (H, W) of an 8-bit RGB photo (H, W, 3), read at :data:`SEG_RES`
+    """The object probability (H, W) of an 8-bit RGB photo (H, W, 3), read at the network's size
     and resized back."""
     from PIL import Image
 
-    small = np.array(Image.fromarray(img8).resize((SEG_RES, SEG_RES), Image.BILINEAR))
-    prob = probabilities(model or load(), small[None])[0]
+    model = model or load()
+    small = np.array(Image.fromarray(img8).resize((model.res, model.res), Image.BILINEAR))
+    prob = probabilities(model, small[None])[0]
     return np.array(Image.fromarray(prob.astype(np.float32)).resize((img8.shape[1], img8.shape[0]), Image.BILINEAR))
 
 

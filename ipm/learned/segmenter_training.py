@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, _prepared, probabilities, shipped_path
+from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, probabilities, shipped_path
 from ipm.settings import Range, Settings, at_least
 
 SEGMENTER_SEED_BASE = 20_000_000
@@ -35,10 +35,10 @@ class SegmenterSettings(Settings):
     """How many training photos and steps the segmenter gets."""
 
     KIND = "segmenter setting"
-    samples: Annotated[int, at_least(1)] = 4800
-    held_out: Annotated[int, at_least(0)] = 200
-    steps: Annotated[int, at_least(1)] = 6000
-    batch: Annotated[int, at_least(1)] = 16
+    samples: Annotated[int, at_least(1)] = 8000
+    held_out: Annotated[int, at_least(0)] = 300
+    steps: Annotated[int, at_least(1)] = 20000
+    batch: Annotated[int, at_least(1)] = 32
     learning_rate: Annotated[float, Range(1e-6, 1.0)] = 2e-3
     spp: Annotated[int, at_least(1)] = 32
     """Samples per pixel of the training renders."""
@@ -48,100 +48,181 @@ PROFILES = {"smoke": SegmenterSettings(samples=8, held_out=4, steps=4, batch=4, 
             "default": SegmenterSettings()}
 
 
-def photo_sample(gen, rng: np.random.Generator, res: int = SEG_RES, spp: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """One training photo (res, res, 3) uint8 and its object mask (res, res) bool."""
-    from ipm.io.views import jpeg_roundtrip, srgb_bytes
+def photo_sample(gen, rng: np.random.Generator, res: int = SEG_RES, spp: int = 16) -> tuple[bytes, np.ndarray]:
+    """One training photo as a JPEG file's bytes (res x res) and its object mask (res, res) bool.
+    The object wears, in equal shares, a plain colour, a seeded noise texture, or the materials the
+    references' views wear (``ipm.render.appearance``: glazes and prints; brick, render and tiles)."""
+    from ipm.io.views import jpeg_bytes, srgb_bytes
     from ipm.learned.data import PHOTO_ELEVATIONS, draw_sample, sample_lod
     from ipm.render.photo_scene import render_photo
-    from ipm.render.textured import procedural_texture
 
     sample = draw_sample(gen, rng, res=res, elevations=PHOTO_ELEVATIONS)
-    mesh_uv = gen.mesh(sample.x, sample_lod(gen)).uv
-    textured = rng.random() < 0.5
-    texture = procedural_texture(int(rng.integers(1 << 30)), 256) if textured else None
-    plain = None if textured else tuple(rng.uniform(0.03, 0.9, 3))
-    linear = render_photo(sample.vertices, sample.faces, mesh_uv, sample.c2w[None], sample.fov_x, res, res,
-                          "random", int(rng.integers(1 << 20)), texture, plain, spp)[0]
-    return jpeg_roundtrip(srgb_bytes(linear), int(rng.integers(60, 96))), sample.mask > 0.5
+    mesh = gen.mesh(sample.x, sample_lod(gen))
+    dress = rng.random()
+    texture, plain, labels = None, None, None
+    if dress < 1 / 3:
+        plain = tuple(rng.uniform(0.03, 0.9, 3))
+    elif dress < 2 / 3:
+        from ipm.render.textured import procedural_texture
+
+        texture = procedural_texture(int(rng.integers(1 << 30)), 256)
+    else:
+        texture, labels = _materials(gen, mesh, int(rng.integers(1 << 30))), mesh.labels
+    linear = render_photo(sample.vertices, sample.faces, mesh.uv, sample.c2w[None], sample.fov_x, res, res,
+                          "random", int(rng.integers(1 << 20)), texture, plain, spp, labels)[0]
+    return jpeg_bytes(srgb_bytes(linear), int(rng.integers(60, 96))), sample.mask > 0.5
 
 
-def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False) -> dict:
-    """``n`` training photos, alternating over :data:`GENERATORS`: ``image`` (n, R, R, 3) uint8
-    and ``mask`` (n, R, R) bool."""
+def _materials(gen, mesh, seed: int) -> dict:
+    """Each part's texture as a reference view would bake it (128 texels a side: a training photo
+    is small)."""
+    from ipm.render.appearance import BUILDING_PARTS, reference_textures
+
+    if gen.name == "dishes":
+        return reference_textures("cup", mesh.vertices, mesh.faces, mesh.labels, mesh.uv, seed, size=128)
+    parts = {int(k): BUILDING_PARTS[mesh.part_names[k]] for k in np.unique(mesh.labels)}
+    return reference_textures("building", mesh.vertices, mesh.faces, mesh.labels, mesh.uv, seed, parts, size=128)
+
+
+def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False, start: int = 0) -> dict:
+    """Training photos ``start`` to ``start + n`` of ``seed``'s sequence, alternating over
+    :data:`GENERATORS`: ``jpeg`` (their files' bytes, a list) and ``mask`` (n, R, R) bool. Each
+    photo draws from its own spawned seed, so ranges made apart join into the same set."""
     from tqdm import tqdm
 
     from ipm.generators import get_generator
 
     gens = [get_generator(g) for g in GENERATORS]
-    images, masks = [], []
-    seeds = np.random.SeedSequence(SEGMENTER_SEED_BASE + seed).spawn(n)
-    for i, ss in enumerate(tqdm(seeds, desc="segmenter photos", disable=not progress, leave=False)):
-        image, mask = photo_sample(gens[i % len(gens)], np.random.default_rng(ss), SEG_RES, spp)
-        images.append(image)
+    files, masks = [], []
+    seeds = np.random.SeedSequence(SEGMENTER_SEED_BASE + seed).spawn(start + n)[start:]
+    for i, ss in enumerate(tqdm(seeds, desc="segmenter photos", disable=not progress, leave=False), start):
+        data, mask = photo_sample(gens[i % len(gens)], np.random.default_rng(ss), SEG_RES, spp)
+        files.append(data)
         masks.append(mask)
-    return {"image": np.stack(images), "mask": np.stack(masks)}
+    return {"jpeg": files, "mask": np.stack(masks)}
+
+
+def decoded(data: dict) -> np.ndarray:
+    """The photos of :func:`make_photos` as uint8 images (n, R, R, 3)."""
+    from ipm.io.views import jpeg_decode
+
+    return np.stack([jpeg_decode(b) for b in data["jpeg"]])
+
+
+def save_photos(path, data: dict) -> None:
+    """Write :func:`make_photos`'s photos (the JPEG files end to end, their offsets, the masks as
+    bits) to one ``.npz`` file, atomically."""
+    from ipm.io.atomic import atomic_path
+
+    ends = np.cumsum([len(b) for b in data["jpeg"]])
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, jpeg=np.frombuffer(b"".join(data["jpeg"]), np.uint8), ends=ends,
+                 mask=np.packbits(data["mask"], axis=-1), res=data["mask"].shape[-1])
+
+
+def load_photos(*paths) -> dict:
+    """The photos of one or more :func:`save_photos` files, joined in the order given."""
+    files, masks = [], []
+    for path in paths:
+        try:
+            with np.load(path) as z:
+                blob, ends, res = z["jpeg"].tobytes(), z["ends"], int(z["res"])
+                masks.append(np.unpackbits(z["mask"], axis=-1, count=res).astype(bool))
+        except (OSError, KeyError, ValueError) as exc:
+            raise UserError(f"unreadable training photos {path}: {exc}") from None
+        files += [blob[a:b] for a, b in zip(np.concatenate([[0], ends[:-1]]), ends)]
+    return {"jpeg": files, "mask": np.concatenate(masks)}
+
+
+def _augmented(images, masks, key, batch: int):
+    """A batch drawn from the photos (on the device): uint8 (N, R, R, 3) -> the network's input
+    (batch, 3, R, R), each mirrored at random (a photo's object faces either way) and its exposure,
+    contrast and white balance varied, and the masks (batch, R, R) to match."""
+    k_idx, k_flip, k_gain, k_con, k_white = jax.random.split(key, 5)
+    idx = jax.random.randint(k_idx, (batch,), 0, images.shape[0])
+    x, y = images[idx].astype(jnp.float32) / 255.0, masks[idx].astype(jnp.float32)
+    flip = jax.random.bernoulli(k_flip, 0.5, (batch,))
+    x = jnp.where(flip[:, None, None, None], x[:, :, ::-1], x)
+    y = jnp.where(flip[:, None, None], y[:, :, ::-1], y)
+    mean = x.mean(axis=(1, 2, 3), keepdims=True)
+    contrast = jax.random.uniform(k_con, (batch, 1, 1, 1), minval=0.8, maxval=1.2)
+    gain = jax.random.uniform(k_gain, (batch, 1, 1, 1), minval=0.8, maxval=1.2)
+    white = jax.random.uniform(k_white, (batch, 1, 1, 3), minval=0.92, maxval=1.08)
+    x = jnp.clip(((x - mean) * contrast + mean) * gain * white, 0.0, 1.0)
+    return jnp.transpose(x - 0.5, (0, 3, 1, 2)), y
 
 
 def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None):
-    """Train the segmenter: the model and its metadata (held-out mask IoU, seconds)."""
+    """Train the segmenter: the model and its metadata (held-out mask IoU, seconds). The photos
+    (rendered here unless ``data`` gives them, as :func:`make_photos` returns them) stay on JAX's
+    device; each step draws its batch there, augmented (:func:`_augmented`). The loss: binary
+    cross-entropy plus one minus each photo's soft IoU."""
     import optax
     from tqdm import tqdm
 
     t0 = time.perf_counter()
     if data is None:
         data = make_photos(settings.samples + settings.held_out, seed, settings.spp, progress)
-    n = settings.samples
+    if len(data["jpeg"]) < settings.samples + settings.held_out:
+        raise UserError(f"{len(data['jpeg'])} training photos, the budget needs "
+                        f"{settings.samples + settings.held_out}")
+    images, n = decoded(data), settings.samples
     render_s = time.perf_counter() - t0
-    model = UNet(jax.random.PRNGKey(seed))
+    model = UNet(jax.random.PRNGKey(seed), WIDTHS, images.shape[1])
     opt = optax.adam(optax.cosine_decay_schedule(settings.learning_rate, settings.steps))
     state = opt.init(eqx.filter(model, eqx.is_array))
+    train_x, train_y = jnp.asarray(images[:n]), jnp.asarray(data["mask"][:n])
 
     def loss_fn(model, x, y):
         logits = jax.vmap(model)(x)
-        return jnp.mean(optax.sigmoid_binary_cross_entropy(logits, y))
+        p = jax.nn.sigmoid(logits)
+        soft_iou = (p * y).sum((1, 2)) / ((p + y - p * y).sum((1, 2)) + 1.0)
+        return jnp.mean(optax.sigmoid_binary_cross_entropy(logits, y)) + jnp.mean(1.0 - soft_iou)
 
     @eqx.filter_jit
-    def step(model, state, x, y):
+    def step(model, state, xs, ys, key):
+        x, y = _augmented(xs, ys, key, settings.batch)
         loss, grads = eqx.filter_value_and_grad(loss_fn)(model, x, y)
         updates, state = opt.update(grads, state, model)
         return eqx.apply_updates(model, updates), state, loss
 
-    rng = np.random.default_rng(seed)
+    key = jax.random.PRNGKey(seed + 1)
     losses = []
     bar = tqdm(range(settings.steps), desc="train segmenter", disable=not progress, leave=False)
-    for _ in bar:
-        idx = rng.integers(0, n, settings.batch)
-        x, y = data["image"][idx], data["mask"][idx]
-        flip = rng.random(settings.batch) < 0.5  # mirror images: a photo's object faces either way
-        x, y = np.where(flip[:, None, None, None], x[:, :, ::-1], x), np.where(flip[:, None, None], y[:, :, ::-1], y)
-        model, state, loss = step(model, state, jnp.asarray(_prepared(x)), jnp.asarray(y, jnp.float32))
-        losses.append(float(loss))
-        if len(losses) % 100 == 0:
-            bar.set_postfix(loss=f"{np.mean(losses[-100:]):.4f}")
-    from ipm.metrics.silhouette import view_ious
-
-    held = view_ious(data["mask"][n:], probabilities(model, data["image"][n:]) > 0.5) if settings.held_out else None
-    meta = {"seed": seed, "settings": asdict(settings), "res": SEG_RES, "widths": list(WIDTHS),
-            "generators": list(GENERATORS), "final_loss": float(np.mean(losses[-50:])),
+    for i in bar:
+        model, state, loss = step(model, state, train_x, train_y, jax.random.fold_in(key, i))
+        losses.append(loss)
+        if (i + 1) % 100 == 0:
+            bar.set_postfix(loss=f"{float(np.mean(losses[-100:])):.4f}")
+    losses = [float(v) for v in losses[-50:]]
+    held = None
+    if settings.held_out:  # each held-out photo's mask IoU (1 where both are empty)
+        pred, truth = probabilities(model, images[n:]) > 0.5, data["mask"][n:]
+        union = (pred | truth).sum((1, 2))
+        held = np.where(union > 0, (pred & truth).sum((1, 2)) / np.maximum(union, 1), 1.0)
+    meta = {"seed": seed, "settings": asdict(settings), "res": model.res, "widths": list(WIDTHS),
+            "generators": list(GENERATORS), "final_loss": float(np.mean(losses)), "device": jax.default_backend(),
             "held_out_mask_iou": None if held is None else {"mean": float(held.mean()), "worst": float(held.min())},
             "render_seconds": round(render_s, 1), "train_seconds": round(time.perf_counter() - t0 - render_s, 1)}
     return model, meta
 
 
-def prepare(out, profile: str = "default", seed: int = 0, progress: bool = False) -> dict:
-    """Train the segmenter with ``profile``'s budget from ``seed`` and write it to ``out``."""
+def prepare(out, profile: str = "default", seed: int = 0, progress: bool = False, data: dict | None = None) -> dict:
+    """Train the segmenter with ``profile``'s budget from ``seed`` (on ``data``'s photos where
+    given) and write it to ``out``."""
     from ipm.learned.network import save
 
     if profile not in PROFILES:
         raise UserError(f"unknown profile {profile!r} (known: {', '.join(PROFILES)})")
-    model, meta = fit(PROFILES[profile], seed, progress)
+    model, meta = fit(PROFILES[profile], seed, progress, data)
     save(model, out, meta, FORMAT)
     return meta
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m ipm.learned.segmenter_training [OUT] [--threads N]``: train the shipped
-    segmenter (default budget, seed 0; the shipped file: two threads)."""
+    """``python -m ipm.learned.segmenter_training [OUT] [--threads N] [--photos F ...] [--device D]``:
+    train the shipped segmenter (default budget, seed 0) on photos rendered here or read from
+    ``--photos`` files; ``--render-photos F --start A --count N`` renders a range of them to ``F``."""
     import argparse
 
     from ipm.runtime import configure_threads, set_mitsuba_variant
@@ -149,10 +230,27 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m ipm.learned.segmenter_training", description=main.__doc__)
     ap.add_argument("out", nargs="?", default=None, help="weights file (default: the shipped one)")
     ap.add_argument("--threads", type=int, default=2, help="CPU threads for XLA and Dr.Jit")
+    ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="where JAX trains")
+    ap.add_argument("--photos", nargs="+", default=None, help="training photos written by --render-photos, "
+                    "in order (default: render them here)")
+    ap.add_argument("--seed", type=int, default=0, help="the network's initial weights and batches (the "
+                    "shipped one: 0; the photos are seed 0's either way)")
+    ap.add_argument("--render-photos", default=None, metavar="FILE", help="only render photos to FILE")
+    ap.add_argument("--start", type=int, default=0, help="with --render-photos: the first photo's index")
+    ap.add_argument("--count", type=int, default=None, help="with --render-photos: how many (default: all)")
     args = ap.parse_args(argv)
-    configure_threads(args.threads, "cpu")
-    set_mitsuba_variant("cpu", args.threads)
-    meta = prepare(args.out or shipped_path(), progress=True)
+    configure_threads(args.threads, args.device)
+    settings = PROFILES["default"]
+    if args.render_photos:
+        set_mitsuba_variant("cpu", args.threads)
+        count = settings.samples + settings.held_out - args.start if args.count is None else args.count
+        save_photos(args.render_photos, make_photos(count, 0, settings.spp, True, args.start))
+        return
+    if args.photos is None:
+        set_mitsuba_variant("cpu", args.threads)
+    meta = prepare(args.out or shipped_path(), seed=args.seed, progress=True,
+                   data=load_photos(*args.photos) if args.photos else make_photos(
+                       settings.samples + settings.held_out, 0, settings.spp, True))
     print({k: meta[k] for k in ("held_out_mask_iou", "render_seconds", "train_seconds")})
 
 

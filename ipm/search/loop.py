@@ -163,7 +163,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         label = move.label or move.name
         track.enter(label, steps.width)
         trial = Trial(problem, steps, score, mem.lr, mem.reject_ratio, views, profile, track.on_eval,
-                      track.recorder(label, score.width))
+                      track.recorder(label, score.width), track.extend)
         out = []
         for c in cands:
             steps.rewind()  # each candidate's steps draw the same seeds, whatever ran before

@@ -85,10 +85,14 @@ class Trial:
     (an objective at the stage's width); every evaluation and scored candidate goes to the trace."""
 
     def __init__(self, problem: Problem, steps, score, lr: float, reject_ratio: float, views=None, profile=None,
-                 on_eval: Callable = lambda ind: None, record: Callable = lambda name, loss: None):
+                 on_eval: Callable = lambda ind: None, record: Callable = lambda name, loss: None,
+                 plan: Callable[[int], None] = lambda evaluations: None):
         self.problem, self.steps, self.score, self.views, self.profile = problem, steps, score, views, profile
         self.lr, self.reject_ratio = lr, reject_ratio
         self.on_eval, self.record = on_eval, record
+        self.plan = plan
+        """Tells the progress bar of evaluations a move now knows it will spend (negative: fewer
+        than it said); for moves whose cost depends on the candidate (``Move.cost`` 0)."""
 
     def scorer(self, seeds: tuple[int, ...]) -> Callable[[np.ndarray], float]:
         """The ``score`` objective's loss averaged over fixed render ``seeds``."""

@@ -53,15 +53,19 @@ def polish(trial, z: np.ndarray, settings: PolishSettings, settled=frozenset()) 
     moves one many-valued gene at a time by chance, so a window count one off on a facade would
     otherwise be left standing."""
     problem, score = trial.problem, trial.scorer((10_003, 10_004))
-    best = score(z)
+    best, each = score(z), max(settings.polish_steps, 1)  # evaluations a neighbour costs
     for _ in range(settings.polish_sweeps):
-        improved = False
-        for param in [p for p in neighbours(problem, z) if p not in settled]:
+        improved, params = False, {p: v for p, v in neighbours(problem, z).items() if p not in settled}
+        planned, spent = each * sum(len(v) for v in params.values()), 0
+        trial.plan(planned)  # at most the sweep's neighbours; the bar is set right after the sweep
+        for param in params:
             for name, alt in neighbours(problem, z).get(param, []):
                 cand, loss = trial.tried(alt, name, settings.polish_steps, score)
+                spent += each
                 if loss < best:
                     z, best, improved = cand, loss, True
                     break
+        trial.plan(spent - planned)
         if not improved:
             break
     return z
