@@ -2,11 +2,14 @@
 
 Training photos: the dishes' and the buildings' random objects (``ipm.learned.data.draw_sample``,
 a photo's range of elevations and lenses) rendered by ``ipm.render.photo_scene`` on random
-grounds, walls, skies and suns, with a random plain colour or a seeded noise texture, then
-JPEG-compressed at a random quality; the target is the object's silhouette. Every sample draws
-from its own seed (``SEGMENTER_SEED_BASE + seed``, spawned), a range no case's sampler reaches.
-``python -m ipm.learned.segmenter_training [OUT] [--threads N]`` makes the shipped weights (default
-budget, seed 0; the shipped file was made with two threads).
+grounds, walls, skies and suns, in a random plain colour, a seeded noise texture or their class's
+reference materials, then JPEG-compressed at a random quality; the target is the object's
+silhouette. Every sample draws from its own seed (``SEGMENTER_SEED_BASE + seed``, spawned), a
+range no case's sampler reaches. The shipped weights (default budget, seed 0) were made in two
+steps: ``python -m ipm.learned.segmenter_training --render-photos A.npz --count 4150`` and
+``... --render-photos B.npz --start 4150`` on the CPU (Mitsuba), then
+``python -m ipm.learned.segmenter_training --photos A.npz B.npz --device cuda`` on one GPU (about
+5 minutes there; about 34 hours on two CPU threads).
 """
 from __future__ import annotations
 
