@@ -31,14 +31,11 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask
     (both as its lens draws them)."""
     from ipm.io.views import jpeg_roundtrip, srgb_bytes
-    from ipm.synth import PHOTO_QUALITY, case_fov, ground_truth_mesh, load_case, photographs, view_cameras
+    from ipm.synth import PHOTO_QUALITY, case_cameras, ground_truth_mesh, load_case, photographs
 
     spec = load_case(case)
     v, f, labels, uv = ground_truth_mesh(spec)
-    lo, hi = v.min(0), v.max(0)
-    cam, fov = spec.get("camera", {}), case_fov(spec)
-    c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
-                       cam.get("elevation_deg", 22.0), "photo", fov)
+    c2w, fov = case_cameras(spec, v, 1, "photo")
     linear, masks, _ = photographs(case, spec, v, f, labels, uv, c2w, fov, res, spp, backdrop)
     return jpeg_roundtrip(srgb_bytes(linear[0]), PHOTO_QUALITY), masks[0] > 0.5
 
@@ -49,16 +46,20 @@ def plain_view(case: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
     from ipm.io.views import srgb_bytes
     from ipm.render.silhouette import SilhouetteRenderer
     from ipm.render.textured import render_painted
-    from ipm.synth import case_fov, ground_truth_mesh, load_case, reference_appearance, view_cameras
+    from ipm.synth import case_cameras, ground_truth_mesh, load_case, reference_appearance
 
     spec = load_case(case)
     v, f, labels, uv = ground_truth_mesh(spec)
-    lo, hi = v.min(0), v.max(0)
-    cam, fov = spec.get("camera", {}), case_fov(spec)
-    c2w = view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), 1, cam.get("azimuth_deg", 0.0),
-                       cam.get("elevation_deg", 22.0), "hemi", fov)
+    c2w, fov = case_cameras(spec, v, 1, "hemi")
     rgb = render_painted(v, f, labels, uv, reference_appearance(spec, v, f, labels, uv), c2w, fov, res, res, spp)
     return srgb_bytes(rgb[0]), SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)[0] > 0.5
+
+
+def network_mask(img: np.ndarray, model=None) -> np.ndarray:
+    """The segmenter's network alone (``model``, else the shipped one): its probability above 0.5."""
+    from ipm.learned.segmenter import probability
+
+    return (probability(img, model) > 0.5).astype(np.float32)
 
 
 def score(mask: np.ndarray, truth: np.ndarray) -> float:
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
     from ipm.io import write_json
     from ipm.render.photo_scene import BACKDROPS
     from ipm.runtime import configure_threads, set_mitsuba_variant
-    from ipm.learned.segmenter import load, probability
+    from ipm.learned.segmenter import load
     from ipm.segment import mask_from_image, mask_from_photo
     from ipm.synth import load_case
 
@@ -101,12 +102,10 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)
-    segmenters = {"colour": mask_from_image, "learned": mask_from_photo,
-                  "network": lambda img: (probability(img) > 0.5).astype(np.float32)}
+    segmenters = {"colour": mask_from_image, "learned": mask_from_photo, "network": network_mask}
     for path in args.weights:
         segmenters[f"learned:{Path(path).stem}"] = lambda img, model=load(path): mask_from_photo(img, model)
-        segmenters[f"network:{Path(path).stem}"] = lambda img, model=load(path): (
-            probability(img, model) > 0.5).astype(np.float32)
+        segmenters[f"network:{Path(path).stem}"] = lambda img, model=load(path): network_mask(img, model)
     rows = []
     for case in tqdm(args.cases, desc="cases"):
         spec = load_case(case)

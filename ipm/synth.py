@@ -161,6 +161,15 @@ def view_cameras(center: np.ndarray, radius: float, n_views: int, azimuth: float
     return np.stack(cams)
 
 
+def case_cameras(spec: dict, vertices: np.ndarray, n_views: int, layout: str) -> tuple[np.ndarray, float]:
+    """The case's ``n_views`` cameras of ``layout`` round its true mesh's ``vertices`` (view 0 its
+    input view, at the case's azimuth and elevation) and their horizontal field of view."""
+    lo, hi = vertices.min(0), vertices.max(0)
+    cam, fov = spec.get("camera", {}), case_fov(spec)
+    return view_cameras((lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2), n_views, cam.get("azimuth_deg", 0.0),
+                        cam.get("elevation_deg", 22.0), layout, fov), fov
+
+
 def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp: int = 64,
                progress: bool = True, layout: str = "hemi") -> None:
     """Render the case's references into ``out`` (atomically: all or nothing)."""
@@ -177,11 +186,7 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
     if layout == "photo" and is_tree_case(spec):
         raise UserError(f"{case}: the photo layout renders cups and buildings, not trees")
     v, f, labels, uv = ground_truth_mesh(spec)
-    lo, hi = v.min(0), v.max(0)
-    center, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
-    cam, fov = spec.get("camera", {}), case_fov(spec)
-    c2w = view_cameras(center, radius, n_views, cam.get("azimuth_deg", 0.0), cam.get("elevation_deg", 22.0), layout,
-                       fov)
+    c2w, fov = case_cameras(spec, v, n_views, layout)
     scheme, tree = semantic_scheme(spec), is_tree_case(spec)
     with atomic_dir(out) as tmp:
         if scheme:
