@@ -151,6 +151,7 @@ def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu, tmp_path
     save_photos(tmp_path / "b.npz", later)
     joined = load_photos(tmp_path / "a.npz", tmp_path / "b.npz")
     assert joined["jpeg"] == data["jpeg"] and np.array_equal(joined["mask"], data["mask"])
+    assert joined["ranges"] == [[0, 1], [1, 3]]  # which photos of the sequence a training saw
     (tmp_path / "bad.npz").write_text("not photos")
     with pytest.raises(UserError, match="unreadable training photos"):
         load_photos(tmp_path / "bad.npz")
@@ -159,8 +160,8 @@ def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu, tmp_path
 @pytest.mark.slow
 def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu, monkeypatch):
     """A few steps on four photos lower the loss; the weights written and read back (a narrower
-    network than the shipped one: its size comes from the file) give the same probabilities; a
-    file of another kind is one clear error."""
+    network than the shipped one: its size comes from the file) give the same probabilities and
+    train on from where they were (a second stage); a file of another kind is one clear error."""
     import jax
 
     from ipm.learned import segmenter_training
@@ -180,6 +181,13 @@ def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu, monkeypatch
     p1, p2 = probabilities(model, images), probabilities(back, images)
     assert p1.shape == data["mask"].shape and np.abs(p1 - p2).max() < 2e-2  # float16 storage
     assert jax.tree_util.tree_structure(model) == jax.tree_util.tree_structure(back)
+    from ipm.learned.segmenter import read
+
+    again, again_meta = fit(settings.updated(steps=1), 0, data=data, init=read(tmp_path / "seg.json"))
+    assert again_meta["final_loss"] < first and again_meta["init"]["final_loss"] == meta["final_loss"]
+    assert again_meta["widths"] == [8, 16, 16] and again_meta["photos"] == [[0, 4]]
+    with pytest.raises(UserError, match="reads 64 px photos"):
+        fit(settings, 0, data=data, init=(again.__class__(jax.random.PRNGKey(0), (8, 16, 16), 64), {}))
     (tmp_path / "bad.json").write_text('{"format": "ipm-learned-regressor/1"}')
     with pytest.raises(UserError, match="not a segmenter's weights"):
         load(str(tmp_path / "bad.json"))

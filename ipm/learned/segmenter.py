@@ -54,9 +54,10 @@ class UNet(eqx.Module):
         return self.out(h)[0]
 
 
-def _prepared(images: np.ndarray) -> np.ndarray:
-    """uint8 photos (n, R, R, 3) as the network reads them: (n, 3, R, R) in [-0.5, 0.5]."""
-    return np.transpose(images.astype(np.float32) / 255.0 - 0.5, (0, 3, 1, 2))
+def _prepared(images):
+    """Photos (n, R, R, 3) of 0-255 values (NumPy or JAX) as the network reads them: (n, 3, R, R)
+    in [-0.5, 0.5]."""
+    return (images.astype(np.float32) / 255.0 - 0.5).transpose(0, 3, 1, 2)
 
 
 @lru_cache(maxsize=1)
@@ -77,14 +78,20 @@ def shipped_path():
     return Path(__file__).parent / "weights" / "segmenter.json"
 
 
+def read(path=None) -> tuple[UNet, dict]:
+    """The segmenter from ``path``, else the shipped one, and its file's metadata without the
+    weights (``UserError`` if missing or malformed)."""
+    from ipm.learned.network import load_model
+
+    model, record = load_model(path or shipped_path(), FORMAT, "a segmenter's",
+                               lambda r: UNet(jax.random.PRNGKey(0), tuple(r["widths"]), r["res"]))
+    return model, {k: v for k, v in record.items() if k != "format"}
+
+
 @lru_cache(maxsize=2)
 def load(path: str | None = None) -> UNet:
     """The segmenter from ``path``, else the shipped one (``UserError`` if missing or malformed)."""
-    from ipm.learned.network import load_model
-
-    model, _ = load_model(path or shipped_path(), FORMAT, "a segmenter's",
-                          lambda r: UNet(jax.random.PRNGKey(0), tuple(r["widths"]), r["res"]))
-    return model
+    return read(path)[0]
 
 
 def probability(img8: np.ndarray, model: UNet | None = None) -> np.ndarray:

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, probabilities, shipped_path
+from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, _prepared, probabilities, read, shipped_path
 from ipm.settings import Range, Settings, at_least
 
 SEGMENTER_SEED_BASE = 20_000_000
@@ -89,8 +89,9 @@ def _materials(gen, mesh, seed: int) -> dict:
 
 def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False, start: int = 0) -> dict:
     """Training photos ``start`` to ``start + n`` of ``seed``'s sequence, alternating over
-    :data:`GENERATORS`: ``jpeg`` (their files' bytes, a list) and ``mask`` (n, R, R) bool. Each
-    photo draws from its own spawned seed, so ranges made apart join into the same set."""
+    :data:`GENERATORS`: ``jpeg`` (their files' bytes, a list), ``mask`` (n, R, R) bool and
+    ``ranges`` (``[[start, start + n]]``). Each photo draws from its own spawned seed, so ranges made
+    apart join into the same set."""
     from tqdm import tqdm
 
     from ipm.generators import get_generator
@@ -102,7 +103,7 @@ def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False, start:
         data, mask = photo_sample(gens[i % len(gens)], np.random.default_rng(ss), SEG_RES, spp)
         files.append(data)
         masks.append(mask)
-    return {"jpeg": files, "mask": np.stack(masks)}
+    return {"jpeg": files, "mask": np.stack(masks), "ranges": [[start, start + n]]}
 
 
 def decoded(data: dict) -> np.ndarray:
@@ -114,27 +115,29 @@ def decoded(data: dict) -> np.ndarray:
 
 def save_photos(path, data: dict) -> None:
     """Write :func:`make_photos`'s photos (the JPEG files end to end, their offsets, the masks as
-    bits) to one ``.npz`` file, atomically."""
+    bits, the photos' index ranges) to one compressed ``.npz`` file, atomically."""
     from ipm.io.atomic import atomic_path
 
     ends = np.cumsum([len(b) for b in data["jpeg"]])
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, jpeg=np.frombuffer(b"".join(data["jpeg"]), np.uint8), ends=ends,
-                 mask=np.packbits(data["mask"], axis=-1), res=data["mask"].shape[-1])
+        np.savez_compressed(fh, jpeg=np.frombuffer(b"".join(data["jpeg"]), np.uint8), ends=ends,
+                            mask=np.packbits(data["mask"], axis=-1), res=data["mask"].shape[-1],
+                            ranges=np.asarray(data["ranges"], np.int64).reshape(-1, 2))
 
 
 def load_photos(*paths) -> dict:
     """The photos of one or more :func:`save_photos` files, joined in the order given."""
-    files, masks = [], []
+    files, masks, ranges = [], [], []
     for path in paths:
         try:
             with np.load(path) as z:
                 blob, ends, res = z["jpeg"].tobytes(), z["ends"], int(z["res"])
                 masks.append(np.unpackbits(z["mask"], axis=-1, count=res).astype(bool))
+                ranges += z["ranges"].tolist() if "ranges" in z else []
         except (OSError, KeyError, ValueError) as exc:
             raise UserError(f"unreadable training photos {path}: {exc}") from None
         files += [blob[a:b] for a, b in zip(np.concatenate([[0], ends[:-1]]), ends)]
-    return {"jpeg": files, "mask": np.concatenate(masks)}
+    return {"jpeg": files, "mask": np.concatenate(masks), "ranges": ranges}
 
 
 def _augmented(images, masks, key, batch: int):
@@ -152,14 +155,16 @@ def _augmented(images, masks, key, batch: int):
     gain = jax.random.uniform(k_gain, (batch, 1, 1, 1), minval=0.8, maxval=1.2)
     white = jax.random.uniform(k_white, (batch, 1, 1, 3), minval=0.92, maxval=1.08)
     x = jnp.clip(((x - mean) * contrast + mean) * gain * white, 0.0, 1.0)
-    return jnp.transpose(x - 0.5, (0, 3, 1, 2)), y
+    return _prepared(x * 255.0), y
 
 
-def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None):
+def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None,
+        init: tuple | None = None):
     """Train the segmenter: the model and its metadata (held-out mask IoU, seconds). The photos
     (rendered here unless ``data`` gives them, as :func:`make_photos` returns them) stay on JAX's
     device; each step draws its batch there, augmented (:func:`_augmented`). The loss: binary
-    cross-entropy plus one minus each photo's soft IoU."""
+    cross-entropy plus one minus each photo's soft IoU. ``init`` (a model and its metadata, as
+    ``ipm.learned.segmenter.read`` returns them) starts from a trained network instead of ``seed``'s."""
     import optax
     from tqdm import tqdm
 
@@ -171,7 +176,9 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
                         f"{settings.samples + settings.held_out}")
     images, n = decoded(data), settings.samples
     render_s = time.perf_counter() - t0
-    model = UNet(jax.random.PRNGKey(seed), WIDTHS, images.shape[1])
+    model = UNet(jax.random.PRNGKey(seed), WIDTHS, images.shape[1]) if init is None else init[0]
+    if model.res != images.shape[1]:
+        raise UserError(f"the network reads {model.res} px photos, the training photos are {images.shape[1]} px")
     opt = optax.adam(optax.cosine_decay_schedule(settings.learning_rate, settings.steps))
     state = opt.init(eqx.filter(model, eqx.is_array))
     train_x, train_y = jnp.asarray(images[:n]), jnp.asarray(data["mask"][:n])
@@ -203,29 +210,34 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
         pred, truth = probabilities(model, images[n:]) > 0.5, data["mask"][n:]
         union = (pred | truth).sum((1, 2))
         held = np.where(union > 0, (pred & truth).sum((1, 2)) / np.maximum(union, 1), 1.0)
-    meta = {"seed": seed, "settings": asdict(settings), "res": model.res, "widths": list(WIDTHS),
-            "generators": list(GENERATORS), "final_loss": float(np.mean(losses)), "device": jax.default_backend(),
+    meta = {"seed": seed, "settings": asdict(settings), "res": model.res,
+            "widths": [a.out_channels for a, _ in model.down], "generators": list(GENERATORS),
+            "photos": data.get("ranges", []), "final_loss": float(np.mean(losses)), "device": jax.default_backend(),
             "held_out_mask_iou": None if held is None else {"mean": float(held.mean()), "worst": float(held.min())},
             "render_seconds": round(render_s, 1), "train_seconds": round(time.perf_counter() - t0 - render_s, 1)}
+    if init is not None:
+        meta["init"] = init[1]
     return model, meta
 
 
-def prepare(out, profile: str = "default", seed: int = 0, progress: bool = False, data: dict | None = None) -> dict:
+def prepare(out, profile: str = "default", seed: int = 0, progress: bool = False, data: dict | None = None,
+            init: tuple | None = None) -> dict:
     """Train the segmenter with ``profile``'s budget from ``seed`` (on ``data``'s photos where
-    given) and write it to ``out``."""
+    given; from ``init``'s network where given) and write it to ``out``."""
     from ipm.learned.network import save
 
     if profile not in PROFILES:
         raise UserError(f"unknown profile {profile!r} (known: {', '.join(PROFILES)})")
-    model, meta = fit(PROFILES[profile], seed, progress, data)
+    model, meta = fit(PROFILES[profile], seed, progress, data, init)
     save(model, out, meta, FORMAT)
     return meta
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m ipm.learned.segmenter_training [OUT] [--threads N] [--photos F ...] [--device D]``:
-    train the shipped segmenter (default budget, seed 0) on photos rendered here or read from
-    ``--photos`` files; ``--render-photos F --start A --count N`` renders a range of them to ``F``."""
+    """``python -m ipm.learned.segmenter_training [OUT] [--threads N] [--photos F ...] [--device D]
+    [--init W]``: train the shipped segmenter (default budget, seed 0) on photos rendered here or
+    read from ``--photos`` files, from new weights or ``--init``'s; ``--render-photos F --start A
+    --count N`` renders a range of them to ``F``."""
     import argparse
 
     from ipm.runtime import configure_threads, set_mitsuba_variant
@@ -241,6 +253,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--render-photos", default=None, metavar="FILE", help="only render photos to FILE")
     ap.add_argument("--start", type=int, default=0, help="with --render-photos: the first photo's index")
     ap.add_argument("--count", type=int, default=None, help="with --render-photos: how many (default: all)")
+    ap.add_argument("--init", default=None, metavar="WEIGHTS", help="train on from this segmenter's weights "
+                    "(a second stage on further photos) instead of new ones")
     args = ap.parse_args(argv)
     configure_threads(args.threads, args.device)
     settings = PROFILES["default"]
@@ -251,7 +265,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.photos is None:
         set_mitsuba_variant("cpu", args.threads)
-    meta = prepare(args.out or shipped_path(), seed=args.seed, progress=True,
+    init = read(args.init) if args.init else None
+    meta = prepare(args.out or shipped_path(), seed=args.seed, progress=True, init=init,
                    data=load_photos(*args.photos) if args.photos else make_photos(
                        settings.samples + settings.held_out, 0, settings.spp, True))
     print({k: meta[k] for k in ("held_out_mask_iou", "render_seconds", "train_seconds")})
