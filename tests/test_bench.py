@@ -89,6 +89,21 @@ def test_segmentation_scores_masks_and_groups_them_by_class_family_and_backdrop(
     assert out["table"]["learned"]["mean"] == 0.95 and out["buildings out"]["colour"]["n"] == 1
 
 
+def test_texture_paints_ground_truths_of_the_generators_only_and_tables_them(tmp_path):
+    """The truth row is refused for a case a generator did not make (its charts have no symmetry to
+    fill by); the table gives it a line of its own beside ours' fit."""
+    from ipm.errors import UserError
+
+    bench = _script("texture")
+    with pytest.raises(UserError, match="not made by a generator"):
+        bench.truth("cup_ext", tmp_path, 1)
+    side = {"psnr": 20.0, "ssim": 0.5}
+    rows = [{"case": "cup_1", "row": r, "inputs": 1, "refine": "default", "sides": {"input": side, "seen": side}}
+            for r in ("diff", "truth")]
+    lines = bench.table(rows).splitlines()
+    assert len(lines) == 4 and lines[3].startswith("| cup_1 | truth | 1 | - | 20.0 / 0.500 | 20.0 / 0.500 | - |")
+
+
 def test_compile_profile_adds_up_processes_by_program_and_test():
     """Totals over processes; programs ranked by compile seconds with their cache hits; tests by
     compile, trace and lowering seconds (a record outside a test goes to "-")."""
