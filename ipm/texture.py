@@ -4,8 +4,7 @@
 1. Projection: each texel's surface point takes the colour of every input view that sees it (a
    ray from the camera meets the fitted mesh there first), divided by the shading the reference
    lighting gives a white mesh at that pixel, so the texture holds albedo; views weigh by how
-   squarely they see the point and how well it is lit. Further passes (``SHADING_PASSES``) divide
-   by the shading the painted mesh gets instead.
+   squarely they see the point and how well it is lit.
 2. Fill: a texel no view sees takes the mean of the seen texels of its symmetry group (the
    generator's ``texture_symmetry``: a dish's rows round its axis), else its part's mean.
 3. Refinement (under the reference lighting): Mitsuba's differentiable renderer and Adam fit a
@@ -38,14 +37,6 @@ class Refinement:
     spp: int = 8
 
 
-SHADING_PASSES = 1
-"""Projections under the reference lighting: each after the first divides the photos by the shading
-scaled by the last pass's render of the painted mesh over the photo, so that the shading holds the
-painted albedo's interreflections, not a white mesh's (docs/decisions.md, "Shading with the
-painted albedo")."""
-PASS_CLIP = (0.5, 2.0)
-"""Bounds of a pass's per-pixel scaling of the shading (a few samples a pixel are noisy)."""
-
 REFINEMENT: Refinement | None = None
 """The diff path's refinement (docs/decisions.md, "Texture refinement"; None: projection and fill
 alone)."""
@@ -77,8 +68,8 @@ def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> 
 def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.ndarray, c2w: np.ndarray,
             fov_x: float, res: int = TEXTURE_RES, scene=None) -> tuple[np.ndarray, np.ndarray, Texels]:
     """Part ``part``'s texture (res, res, 3) linear albedo from the photos (n, H, W, 3) linear,
-    their masks and the mesh's shading in them ((n, H, W), or per channel (n, H, W, 3)), and the
-    weight each texel got (0: no view saw it)."""
+    their masks and the white mesh's shading in them (n, H, W), and the weight each texel got (0:
+    no view saw it)."""
     from ipm.render.cameras import project as to_pixels
 
     sel = mesh.labels == part
@@ -100,11 +91,10 @@ def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.
         core = _bilinear(_eroded(mask), xy[idx]) > 0.99  # a pixel wholly the object's, not its edge
         idx = idx[core]
         lit = _bilinear(shade, xy[idx])
-        lit = lit[:, None] if lit.ndim == 1 else lit
-        ok = lit.mean(1) > MIN_SHADING
+        ok = lit > MIN_SHADING
         idx, lit = idx[ok], lit[ok]
-        wgt = cos[idx] * lit.mean(1)
-        total[idx] += wgt[:, None] * _bilinear(photo, xy[idx]) / lit
+        wgt = cos[idx] * lit
+        total[idx] += wgt[:, None] * _bilinear(photo, xy[idx]) / lit[:, None]
         weight[idx] += wgt
     texture = np.zeros((res, res, 3))
     seen = np.zeros((res, res))
@@ -146,13 +136,12 @@ def fill(texture: np.ndarray, seen: np.ndarray, covered: tuple[np.ndarray, np.nd
 
 def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,
           lighting: str | None = "reference", res: int = TEXTURE_RES, spp: int = 32,
-          refinement: Refinement | None = None, seed: int = 0, passes: int = SHADING_PASSES) -> tuple[dict, dict]:
+          refinement: Refinement | None = None, seed: int = 0) -> tuple[dict, dict]:
     """Every part's texture {part index: (res, res, 3) linear albedo} of a fitted ``mesh`` (world
     frame, the generator's UVs) from linear photos (n, H, W, 3) with their masks and cameras, and
     per part the share of its texels some view saw. Under the ``reference`` lighting the photos
-    are divided by its shading (``passes`` projections, see :data:`SHADING_PASSES`) and the
-    textures then refined (``refinement``; None: not); under an unknown one (None) the texture
-    keeps the photos' colours, their light and shade with them."""
+    are divided by its shading and the textures then refined (``refinement``; None: not); under
+    an unknown one (None) the texture keeps the photos' colours, their light and shade with them."""
     from ipm.render.textured import render_painted
 
     if mesh.uv is None:
@@ -166,22 +155,14 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
         shading = np.ones((n, h, w))
     else:
         raise UserError(f"unknown lighting {lighting!r} (known: reference, or none)")
-    if passes < 1:
-        raise UserError(f"the texture stage needs at least one projection, not {passes}")
     scene = mesh_scene(mesh.vertices, mesh.faces)
-    for k in range(passes if lighting == "reference" else 1):
-        if k:  # the shading the painted albedo gets: scaled by how far its render is from the photo
-            render = render_painted(mesh.vertices, mesh.faces, mesh.labels, mesh.uv, textures, c2w, fov_x, w, h, spp)
-            scale = np.where(photos > 1e-3, render / np.maximum(photos, 1e-3), 1.0)
-            shading = (shading if shading.ndim == 4 else shading[..., None]) * np.clip(scale, *PASS_CLIP)
-        textures, seen_share = {}, {}
-        for part in np.unique(mesh.labels):
-            part = int(part)
-            texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
-            groups = generator.texture_symmetry(part, res)
-            textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0),
-                                 (tx.rows, tx.cols))
-            seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
+    textures, seen_share = {}, {}
+    for part in np.unique(mesh.labels):
+        part = int(part)
+        texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
+        groups = generator.texture_symmetry(part, res)
+        textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0), (tx.rows, tx.cols))
+        seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
     if lighting == "reference" and refinement is not None and refinement.stages:
         textures = refine(mesh, textures, photos, masks, c2w, fov_x, refinement, seed)
     return textures, seen_share
