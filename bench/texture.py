@@ -197,8 +197,11 @@ def main() -> None:
         for texels in args.texels:
             rows += [repaint(c, work, n, s, "none", texels) for c in args.cases for n in args.inputs
                      for s in args.seeds for _ in range(args.repeat)]
-        if args.truth:
-            rows += [truth(c, work, n) for c in args.cases for n in args.inputs]
+        if args.truth:  # the cases a generator made (the others' charts have no symmetry to fill by)
+            from ipm.synth import load_case
+
+            made = [c for c in args.cases if "generator" in load_case(c)["source"]]
+            rows += [truth(c, work, n) for c in made for n in args.inputs]
     from ipm.io.atomic import write_json
     from ipm.runtime import machine_info, machine_line
 
