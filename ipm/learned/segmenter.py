@@ -54,7 +54,7 @@ class UNet(eqx.Module):
         return self.out(h)[0]
 
 
-def _prepared(images):
+def network_input(images):
     """Photos (n, R, R, 3) of 0-255 values (NumPy or JAX) as the network reads them: (n, 3, R, R)
     in [-0.5, 0.5]."""
     return (images.astype(np.float32) / 255.0 - 0.5).transpose(0, 3, 1, 2)
@@ -68,7 +68,7 @@ def _batched():
 def probabilities(model: UNet, images: np.ndarray, chunk: int = 64) -> np.ndarray:
     """The object probability (n, R, R) of uint8 photos (n, R, R, 3) at the network's size."""
     fn = _batched()
-    return np.concatenate([np.asarray(jax.nn.sigmoid(fn(model, jnp.asarray(_prepared(images[i:i + chunk])))))
+    return np.concatenate([np.asarray(jax.nn.sigmoid(fn(model, jnp.asarray(network_input(images[i:i + chunk])))))
                            for i in range(0, len(images), chunk)])
 
 

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ipm.errors import UserError
-from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, _prepared, probabilities, read, shipped_path
+from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, network_input, probabilities, read, shipped_path
 from ipm.settings import Range, Settings, at_least
 
 SEGMENTER_SEED_BASE = 20_000_000
@@ -155,7 +155,7 @@ def _augmented(images, masks, key, batch: int):
     gain = jax.random.uniform(k_gain, (batch, 1, 1, 1), minval=0.8, maxval=1.2)
     white = jax.random.uniform(k_white, (batch, 1, 1, 3), minval=0.92, maxval=1.08)
     x = jnp.clip(((x - mean) * contrast + mean) * gain * white, 0.0, 1.0)
-    return _prepared(x * 255.0), y
+    return network_input(x * 255.0), y
 
 
 def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None,
