@@ -82,6 +82,7 @@ def summary(rows: list[dict], segmenters: list[str]) -> dict:
 def main(argv: list[str] | None = None) -> None:
     from tqdm import tqdm
 
+    from ipm.cases import case_family
     from ipm.errors import UserError
     from ipm.io import write_json
     from ipm.render.photo_scene import BACKDROPS
@@ -113,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
             rgb, truth = plain_view(case, args.res, args.spp) if args.plain else photograph(case, backdrop, args.res,
                                                                                             args.spp)
             row = {"case": case, "backdrop": backdrop, "class": "cups" if spec["generator"] == "dishes" else "buildings",
-                   "family": "in" if "generator" in spec["source"] else "out"}
+                   "family": case_family(spec)}
             for name, fn in segmenters.items():
                 try:
                     row[name] = round(score(fn(rgb), truth), 4)

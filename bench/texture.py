@@ -99,11 +99,12 @@ def truth(case: str, work: Path, n_input: int) -> dict:
     """The case's own ground truth painted by the texture stage from its first ``n_input`` views and
     scored as :func:`one` (row ``truth``): what the stage reaches where the shape is right. In-family
     cases only: the fill's symmetry is the generator's charts'."""
+    from ipm.cases import case_family
     from ipm.errors import UserError
     from ipm.synth import ground_truth_mesh, load_case
 
     spec = load_case(case)
-    if "generator" not in spec["source"]:
+    if case_family(spec) != "in":
         raise UserError(f"{case} is not made by a generator: its charts have no symmetry to fill by")
     return {"case": case, "row": "truth", "inputs": n_input, "seed": 0, "refine": "default",
             **painted(case, work, n_input, 0, ground_truth_mesh(spec), None, None)}
@@ -198,9 +199,10 @@ def main() -> None:
             rows += [repaint(c, work, n, s, "none", texels) for c in args.cases for n in args.inputs
                      for s in args.seeds for _ in range(args.repeat)]
         if args.truth:  # the cases a generator made (the others' charts have no symmetry to fill by)
+            from ipm.cases import case_family
             from ipm.synth import load_case
 
-            made = [c for c in args.cases if "generator" in load_case(c)["source"]]
+            made = [c for c in args.cases if case_family(load_case(c)) == "in"]
             rows += [truth(c, work, n) for c in made for n in args.inputs]
     from ipm.io.atomic import write_json
     from ipm.runtime import machine_info, machine_line

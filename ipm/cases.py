@@ -179,6 +179,11 @@ def case_split(case: dict) -> str:
     return split
 
 
+def case_family(case: dict) -> str:
+    """``in`` for a case made by its class's generator, ``out`` for one built by independent code."""
+    return "in" if "generator" in case["source"] else "out"
+
+
 def describe_cases(split: str | None = None) -> str:
     """One line per case (``ipm cases``): name, split, generator, family (in: made by the generator,
     with its distance to the nearest preset; out: the recipe that built it), input elevation and

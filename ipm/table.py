@@ -72,10 +72,11 @@ def _row(metrics_path: Path) -> dict:
 
 
 def _family(case: str) -> str:
-    """``in`` for cases made by their class's generator, ``out`` for those built by independent code."""
+    """``in`` or ``out`` of its generator's family (``ipm.cases.case_family``)."""
+    from ipm.cases import case_family
     from ipm.synth import load_case
 
-    return "in" if "generator" in load_case(case)["source"] else "out"
+    return case_family(load_case(case))
 
 
 def long_table(metrics: list[str]) -> pd.DataFrame:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ipm.cases import ELEVATION_RANGE, FOV_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split, preset_distances
-from ipm.cases import sample_case, unit_distance
+from ipm.cases import case_family, sample_case, unit_distance
 from ipm.errors import UserError
 from ipm.generators import GENERATORS, get_generator
 from ipm.metrics.recovery import facade_match, parameter_recovery, seen_counts, true_parameters
@@ -38,6 +38,9 @@ def test_every_case_says_its_split_and_the_test_split_is_complete():
         assert len(lenses) >= 4 and all(FOV_RANGE[0] <= f <= FOV_RANGE[1] for f in lenses)
     with pytest.raises(UserError, match="split must be one of dev, test"):
         case_split({"name": "x", "split": "train"})
+    # in family: made by the class's generator; out: built by independent code (a recipe)
+    assert {case_family(c) == ("out" if "recipe" in c["source"] else "in") for c in cases.values()} == {True}
+    assert case_family(cases["cup_1"]) == "in" and case_family(cases["cup_ext"]) == "out"
 
 
 _BUILT = sorted(c["name"] for c in map(load_case, list_cases()) if "recipe" in c["source"] and c["generator"] != "trees")
