@@ -9,12 +9,13 @@ sphere it sees and the other half.
 
     .venv/bin/python bench/texture.py [--cases cup_1 cup_2] [--inputs 1 6] [--ngp 16] [--views 16]
         [--seeds 0] [--jobs 2] [--refine none 64:20,256:20] [--texels 256 512] [--repeat 3] [--threads 2]
-        [--truth] [--work DIR] [--out results/bench/texture]
+        [--passes 1 2] [--truth] [--work DIR] [--out results/bench/texture]
 
 A fit runs as ``ipm reconstruct`` / ``ipm baseline ngp`` on one thread, ``--jobs`` at a time;
 ``--refine`` paints ours' fits again with each refinement (``ipm.texture.Refinement``), one at a
 time on ``--threads``, and times the stage; ``--texels`` paints them again (no refinement) at each
-texture size; ``--truth`` paints each in-family case's ground truth as ours' fits are painted
+texture size, ``--passes`` with each number of projection passes (``ipm.texture.SHADING_PASSES``);
+``--truth`` paints each in-family case's ground truth as ours' fits are painted
 (row ``truth``: the stage's scores where the shape is right, which tells the shape's share of a
 loss from the texture's).
 Tune nothing on what it prints for test cases: run it on dev cases (the defaults) to choose, on
@@ -84,18 +85,19 @@ def schedule(text: str):
     return Refinement(stages=tuple(tuple(int(x) for x in stage.split(":")) for stage in text.split(",")))
 
 
-def repaint(case: str, work: Path, n_input: int, seed: int, variant: str, texels: int | None = None) -> dict:
+def repaint(case: str, work: Path, n_input: int, seed: int, variant: str, texels: int | None = None,
+            passes: int | None = None) -> dict:
     """Ours' fit of ``case`` painted again with the refinement ``variant`` on textures of ``texels``
-    a side (None: the stage's own) and scored as :func:`one`."""
+    a side and with ``passes`` projections (None: the stage's own) and scored as :func:`one`."""
     from ipm.io.mesh import read_textured_glb
 
     v, f, labels, uv, _ = read_textured_glb(work / f"{case}_diff{n_input}v_s{seed}" / "mesh.glb")
-    label = variant if texels is None else f"{variant}, {texels} texels"
+    label = variant + ("" if texels is None else f", {texels} texels") + ("" if passes is None else f", {passes} passes")
     return {"case": case, "row": "diff", "inputs": n_input, "seed": seed, "refine": label,
-            **painted(case, work, n_input, seed, (v, f, labels, uv), variant, texels)}
+            **painted(case, work, n_input, seed, (v, f, labels, uv), variant, texels, passes)}
 
 
-def truth(case: str, work: Path, n_input: int) -> dict:
+def truth(case: str, work: Path, n_input: int, passes: int | None = None) -> dict:
     """The case's own ground truth painted by the texture stage from its first ``n_input`` views and
     scored as :func:`one` (row ``truth``): what the stage reaches where the shape is right. In-family
     cases only: the fill's symmetry is the generator's charts'."""
@@ -106,15 +108,17 @@ def truth(case: str, work: Path, n_input: int) -> dict:
     spec = load_case(case)
     if case_family(spec) != "in":
         raise UserError(f"{case} is not made by a generator: its charts have no symmetry to fill by")
-    return {"case": case, "row": "truth", "inputs": n_input, "seed": 0, "refine": "default",
-            **painted(case, work, n_input, 0, ground_truth_mesh(spec), None, None)}
+    return {"case": case, "row": "truth", "inputs": n_input, "seed": 0,
+            "refine": "default" if passes is None else f"{passes} passes",
+            **painted(case, work, n_input, 0, ground_truth_mesh(spec), None, None, passes)}
 
 
 def painted(case: str, work: Path, n_input: int, seed: int, mesh: tuple, variant: str | None,
-            texels: int | None) -> dict:
+            texels: int | None, passes: int | None = None) -> dict:
     """A mesh (world vertices, faces, part labels, UVs) of ``case``'s generator painted from the case's
-    first ``n_input`` hemi views (refinement ``variant``, ``texels`` a side; None: the stage's own)
-    and rendered on its held views: the scores per side and the stage's seconds."""
+    first ``n_input`` hemi views (refinement ``variant``, ``texels`` a side, ``passes`` projections;
+    None: the stage's own) and rendered on its held views: the scores per side and the stage's
+    seconds."""
     import time
 
     from ipm.generators import get_generator
@@ -123,7 +127,7 @@ def painted(case: str, work: Path, n_input: int, seed: int, mesh: tuple, variant
     from ipm.metrics.texture import score_renders
     from ipm.render.textured import render_painted
     from ipm.synth import load_case
-    from ipm.texture import REFINEMENT, TEXTURE_RES, paint
+    from ipm.texture import REFINEMENT, SHADING_PASSES, TEXTURE_RES, paint
 
     gen = get_generator(load_case(case)["generator"])
     v, f, labels, uv = mesh
@@ -131,7 +135,8 @@ def painted(case: str, work: Path, n_input: int, seed: int, mesh: tuple, variant
     t0 = time.perf_counter()
     textures, _ = paint(gen, Mesh(v, f, np.zeros_like(v), uv, labels, gen.part_names), load_photos(views),
                         views.masks, views.c2w, views.fov_x, views.lighting, res=texels or TEXTURE_RES,
-                        refinement=REFINEMENT if variant is None else schedule(variant), seed=seed)
+                        refinement=REFINEMENT if variant is None else schedule(variant), seed=seed,
+                        passes=passes or SHADING_PASSES)
     seconds = time.perf_counter() - t0
     held = load_views(work / case / "held" / "transforms.json")
     renders = render_painted(v, f, labels, uv, textures, held.c2w, held.fov_x, held.width, held.height)
@@ -152,7 +157,8 @@ def table(rows: list[dict]) -> str:
             got = [r["sides"][side] for r in mine if side in r["sides"]]
             cells.append(f"{np.mean([g['psnr'] for g in got]):.1f} / {np.mean([g['ssim'] for g in got]):.3f}"
                          if got else "-")
-        lines.append(f"| {case} | {row} | {n} | {variant if row == 'diff' else '-'} | " + " | ".join(cells) + " |")
+        shown = variant if row == "diff" or variant != "default" else "-"
+        lines.append(f"| {case} | {row} | {n} | {shown} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -172,6 +178,8 @@ def main() -> None:
     ap.add_argument("--work", default=None, help="keep the views and fits here (and reuse those it holds)")
     ap.add_argument("--repeat", type=int, default=1, help="repaints per fit and refinement (for their times)")
     ap.add_argument("--threads", type=int, default=1, help="threads of the repaints (each fit takes one)")
+    ap.add_argument("--passes", nargs="*", type=int, default=[],
+                    help="projection passes to paint ours' fits again with (no refinement)")
     ap.add_argument("--truth", action="store_true", help="also paint each case's ground truth (row truth; "
                     "in-family cases): the stage's scores where the shape is right")
     args = ap.parse_args()
@@ -198,12 +206,15 @@ def main() -> None:
         for texels in args.texels:
             rows += [repaint(c, work, n, s, "none", texels) for c in args.cases for n in args.inputs
                      for s in args.seeds for _ in range(args.repeat)]
+        for passes in args.passes:
+            rows += [repaint(c, work, n, s, "none", None, passes) for c in args.cases for n in args.inputs
+                     for s in args.seeds for _ in range(args.repeat)]
         if args.truth:  # the cases a generator made (the others' charts have no symmetry to fill by)
             from ipm.cases import case_family
             from ipm.synth import load_case
 
             made = [c for c in args.cases if case_family(load_case(c)) == "in"]
-            rows += [truth(c, work, n) for c in made for n in args.inputs]
+            rows += [truth(c, work, n, p) for c in made for n in args.inputs for p in [None, *args.passes]]
     from ipm.io.atomic import write_json
     from ipm.runtime import machine_info, machine_line
 

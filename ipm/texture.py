@@ -4,7 +4,9 @@
 1. Projection: each texel's surface point takes the colour of every input view that sees it (a
    ray from the camera meets the fitted mesh there first), divided by the shading the reference
    lighting gives a white mesh at that pixel, so the texture holds albedo; views weigh by how
-   squarely they see the point and how well it is lit.
+   squarely they see the point and how well it is lit. Further passes (``SHADING_PASSES``)
+   divide by the shading the painted mesh itself gets (its render over its albedo), so that light
+   bounced between its parts is that of their painted colours, not of white.
 2. Fill: a texel no view sees takes the mean of the seen texels of its symmetry group (the
    generator's ``texture_symmetry``: a dish's rows round its axis), else its part's mean.
 3. Refinement (under the reference lighting): Mitsuba's differentiable renderer and Adam fit a
@@ -37,6 +39,11 @@ class Refinement:
     spp: int = 8
 
 
+SHADING_PASSES = 1
+"""Projections under the reference lighting: each after the first divides the photos by the
+painted mesh's own shading, its render under the lighting over the albedo each pixel sees, from
+the last pass's textures (docs/decisions.md, "Shading of the painted mesh")."""
+
 REFINEMENT: Refinement | None = None
 """The diff path's refinement (docs/decisions.md, "Texture refinement"; None: projection and fill
 alone)."""
@@ -68,8 +75,8 @@ def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> 
 def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.ndarray, c2w: np.ndarray,
             fov_x: float, res: int = TEXTURE_RES, scene=None) -> tuple[np.ndarray, np.ndarray, Texels]:
     """Part ``part``'s texture (res, res, 3) linear albedo from the photos (n, H, W, 3) linear,
-    their masks and the white mesh's shading in them (n, H, W), and the weight each texel got (0:
-    no view saw it)."""
+    their masks and the mesh's shading in them ((n, H, W), or per channel (n, H, W, 3)), and the
+    weight each texel got (0: no view saw it)."""
     from ipm.render.cameras import project as to_pixels
 
     sel = mesh.labels == part
@@ -91,10 +98,11 @@ def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.
         core = _bilinear(_eroded(mask), xy[idx]) > 0.99  # a pixel wholly the object's, not its edge
         idx = idx[core]
         lit = _bilinear(shade, xy[idx])
-        ok = lit > MIN_SHADING
+        lit = lit[:, None] if lit.ndim == 1 else lit
+        ok = lit.mean(1) > MIN_SHADING
         idx, lit = idx[ok], lit[ok]
-        wgt = cos[idx] * lit
-        total[idx] += wgt[:, None] * _bilinear(photo, xy[idx]) / lit[:, None]
+        wgt = cos[idx] * lit.mean(1)
+        total[idx] += wgt[:, None] * _bilinear(photo, xy[idx]) / lit
         weight[idx] += wgt
     texture = np.zeros((res, res, 3))
     seen = np.zeros((res, res))
@@ -136,12 +144,13 @@ def fill(texture: np.ndarray, seen: np.ndarray, covered: tuple[np.ndarray, np.nd
 
 def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarray, fov_x: float,
           lighting: str | None = "reference", res: int = TEXTURE_RES, spp: int = 32,
-          refinement: Refinement | None = None, seed: int = 0) -> tuple[dict, dict]:
+          refinement: Refinement | None = None, seed: int = 0, passes: int = SHADING_PASSES) -> tuple[dict, dict]:
     """Every part's texture {part index: (res, res, 3) linear albedo} of a fitted ``mesh`` (world
     frame, the generator's UVs) from linear photos (n, H, W, 3) with their masks and cameras, and
     per part the share of its texels some view saw. Under the ``reference`` lighting the photos
-    are divided by its shading and the textures then refined (``refinement``; None: not); under
-    an unknown one (None) the texture keeps the photos' colours, their light and shade with them."""
+    are divided by its shading (``passes`` projections, see :data:`SHADING_PASSES`) and the
+    textures then refined (``refinement``; None: not); under an unknown one (None) the texture
+    keeps the photos' colours, their light and shade with them."""
     from ipm.render.textured import render_painted
 
     if mesh.uv is None:
@@ -149,23 +158,43 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
     n, h, w = photos.shape[:3]
     if masks.shape != (n, h, w):
         raise UserError(f"masks {masks.shape} do not match the photos {photos.shape[:3]}")
+    if passes < 1:
+        raise UserError(f"the texture stage needs at least one projection, not {passes}")
     if lighting == "reference":
         shading = render_painted(mesh.vertices, mesh.faces, mesh.labels, mesh.uv, {}, c2w, fov_x, w, h, spp).mean(-1)
     elif lighting is None:
-        shading = np.ones((n, h, w))
+        shading, passes = np.ones((n, h, w)), 1
     else:
         raise UserError(f"unknown lighting {lighting!r} (known: reference, or none)")
     scene = mesh_scene(mesh.vertices, mesh.faces)
-    textures, seen_share = {}, {}
-    for part in np.unique(mesh.labels):
-        part = int(part)
-        texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
-        groups = generator.texture_symmetry(part, res)
-        textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0), (tx.rows, tx.cols))
-        seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
+    for k in range(passes):
+        if k:
+            shading = painted_shading(mesh, textures, c2w, fov_x, w, h, spp, shading)
+        textures, seen_share = {}, {}
+        for part in np.unique(mesh.labels):
+            part = int(part)
+            texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
+            groups = generator.texture_symmetry(part, res)
+            textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0),
+                                 (tx.rows, tx.cols))
+            seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
     if lighting == "reference" and refinement is not None and refinement.stages:
         textures = refine(mesh, textures, photos, masks, c2w, fov_x, refinement, seed)
     return textures, seen_share
+
+
+def painted_shading(mesh, textures: dict, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int,
+                    fallback: np.ndarray) -> np.ndarray:
+    """The shading (n, height, width, 3) the mesh painted with ``textures`` gets under the reference
+    lighting: its render over the albedo each pixel sees (:func:`ipm.render.textured.render_albedo`),
+    ``fallback`` ((n, H, W) or (n, H, W, 3)) where that albedo is too dark to divide by."""
+    from ipm.render.textured import render_albedo, render_painted
+
+    args = (mesh.vertices, mesh.faces, mesh.labels, mesh.uv, textures, c2w, fov_x, width, height)
+    radiance, albedo = render_painted(*args, spp), render_albedo(*args, spp)
+    fallback = np.broadcast_to(fallback[..., None] if fallback.ndim == 3 else fallback, radiance.shape)
+    dark = albedo < 0.02
+    return np.where(dark, fallback, radiance / np.where(dark, 1.0, albedo))
 
 
 def _enlarge(small: int, large: int):

@@ -96,6 +96,41 @@ def test_paint_recovers_the_albedo_under_the_reference_lighting(painted_plane):
     assert photo.max() > 0  # the photo itself is shaded: the albedo came back only through the division
 
 
+def test_further_passes_take_the_painted_albedos_interreflections_into_the_shading(mitsuba_cpu):
+    """A floor meeting a wall, grey albedo: a white mesh lights its own corner more than a grey one
+    does, so one projection paints the corner too dark; a second pass, dividing by the shading the
+    painted mesh itself gets, brings the albedo back."""
+    from ipm.generators.base import Mesh, vertex_normals
+    from ipm.render.cameras import orbit_camera
+    from ipm.render.textured import render_painted
+    from ipm.texture import paint
+
+    v = np.array([[-1, 0, 0], [1, 0, 0], [1, 0, 2], [-1, 0, 2],  # floor, facing up
+                  [-1, 0, 0], [1, 0, 0], [1, 2, 0], [-1, 2, 0]], float)  # wall, facing +z
+    f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]])
+    uv = np.array([[[0.0, 1.0], [0.5, 0.0], [0.5, 1.0]], [[0.0, 1.0], [0.0, 0.0], [0.5, 0.0]],
+                   [[0.5, 0.0], [1.0, 0.0], [1.0, 1.0]], [[0.5, 0.0], [1.0, 1.0], [0.5, 1.0]]])
+    labels = np.zeros(4, int)
+    albedo = np.full((32, 32, 3), 0.4)
+    c2w = orbit_camera(np.array([0.0, 0.6, 0.6]), 4.0, 0.0, 30.0)[None]
+    photo = render_painted(v, f, labels, uv, {0: albedo}, c2w, 0.9, 64, 64, 256)
+    mask = (render_painted(v, f, labels, uv, {0: np.ones((4, 4, 3))}, c2w, 0.9, 64, 64, 16).mean(-1) > 0.02)
+
+    class Flat:
+        def texture_symmetry(self, part, res):
+            return None
+
+    mesh = Mesh(v, f, vertex_normals(v, f), uv, labels, ("body",))
+    bias = {}
+    for passes in (1, 2):
+        texture, _ = paint(Flat(), mesh, photo, mask.astype(np.float32), c2w, 0.9, "reference", 32, 64,
+                           passes=passes)
+        bias[passes] = texture[0].mean() - 0.4
+    assert bias[1] < -0.03 and abs(bias[2]) < 0.01, bias
+    with pytest.raises(UserError, match="at least one projection"):
+        paint(Flat(), mesh, photo, mask.astype(np.float32), c2w, 0.9, "reference", 32, 64, passes=0)
+
+
 def test_masked_scores_and_sides():
     from ipm.metrics.texture import masked_scores, sides
 

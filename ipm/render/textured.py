@@ -97,6 +97,20 @@ def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray,
     return _render_scene(painted_shapes(vertices, faces, labels, uv, textures), c2w, fov_x, width, height, spp)
 
 
+def render_albedo(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray, fov_x: float, width: int,
+                  height: int, spp: int = 16) -> np.ndarray:
+    """The albedo (n, height, width, 3) each pixel sees first, filtered over the pixel as
+    :func:`render_painted` filters its radiance (Mitsuba's ``aov`` integrator; 0 off the mesh)."""
+    import mitsuba as mi
+
+    scene = {"type": "scene", "integrator": {"type": "aov", "aovs": "albedo:albedo"},
+             **painted_shapes(vertices, faces, labels, uv, textures)}
+    for i, m in enumerate(c2w):
+        scene[f"sensor_{i:03d}"] = sensor_dict(m, fov_x, width, height)
+    scene = mi.load_dict(scene)
+    return np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=i)) for i in range(len(c2w))])
+
+
 def render_glb(path, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int = 64) -> np.ndarray:
     """:func:`render_painted` of a textured glb (``ipm.io.mesh.read_textured_glb``): its parts in
     their textures under the reference lighting from each camera."""
