@@ -39,7 +39,7 @@ class Refinement:
     spp: int = 8
 
 
-SHADING_PASSES = 1
+SHADING_PASSES = 3
 """Projections under the reference lighting: each after the first divides the photos by the
 painted mesh's own shading, its render under the lighting over the albedo each pixel sees, from
 the last pass's textures (docs/decisions.md, "Shading of the painted mesh")."""
