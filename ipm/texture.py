@@ -174,7 +174,7 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
         for part in np.unique(mesh.labels):
             part = int(part)
             texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
-            groups = generator.texture_symmetry(part, res, tx)
+            groups = generator.texture_symmetry(part, res)
             textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0),
                                  (tx.rows, tx.cols))
             seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0

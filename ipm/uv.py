@@ -110,24 +110,6 @@ def texels(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, res: int) ->
     return Texels(res - 1 - v_idx, u_idx, points, normal, k)
 
 
-def level_rows(tx: Texels, res: int) -> np.ndarray:
-    """A part's covered texels grouped by their surface's orientation (facing up, facing down,
-    upright, sloping up, sloping down) and their height above the part's lowest texel, in bins of the
-    texels' own spacing: the rows round a building (a plinth, its courses, a band under the eaves),
-    as ``ipm.texture.fill`` reads groups ((res, res) ints, -1 outside the charts)."""
-    from scipy.spatial import cKDTree
-
-    groups = np.full((res, res), -1)
-    if len(tx.points) < 2:
-        return groups
-    spacing = max(float(np.median(cKDTree(tx.points).query(tx.points, k=2)[0][:, 1])), 1e-9)
-    up = tx.normals[:, 1]
-    kind = np.select([up > 0.98, up < -0.98, np.abs(up) < 0.2, up > 0], [0, 1, 2, 3], 4)
-    height = np.floor((tx.points[:, 1] - tx.points[:, 1].min()) / spacing).astype(int)
-    groups[tx.rows, tx.cols] = kind * (height.max() + 1) + height
-    return groups
-
-
 def pad(texture: np.ndarray, covered: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """``texture`` with every texel outside the charts (not among ``covered`` (rows, cols)) set to
     its nearest covered texel's colour, so that filtering at a chart's edge never reads the empty

@@ -56,7 +56,7 @@ def painted_plane(mitsuba_cpu):
                           16).mean(-1) > 0.02
 
     class Flat:
-        def texture_symmetry(self, part, res, texels=None):
+        def texture_symmetry(self, part, res):
             return None
 
     mesh = Mesh(PLANE, PLANE_FACES, vertex_normals(PLANE, PLANE_FACES), SQUARE, np.zeros(2, int), ("body",))
@@ -117,7 +117,7 @@ def test_further_passes_take_the_painted_albedos_interreflections_into_the_shadi
     mask = (render_painted(v, f, labels, uv, {0: np.ones((4, 4, 3))}, c2w, 0.9, 64, 64, 16).mean(-1) > 0.02)
 
     class Flat:
-        def texture_symmetry(self, part, res, texels=None):
+        def texture_symmetry(self, part, res):
             return None
 
     mesh = Mesh(v, f, vertex_normals(v, f), uv, labels, ("body",))
@@ -214,37 +214,6 @@ def test_dishes_group_texels_by_their_height_round_the_axis():
         if same.sum() > 20:  # a row round the axis: one height, or one radius on a bottom
             assert min(np.ptp(tx.points[same, 1]), np.ptp(radius[same])) < 0.03
     assert gen.texture_symmetry(1, 64).max() >= 0 and get_generator("buildings").texture_symmetry(0, 64) is None
-
-
-def test_level_rows_group_a_buildings_texels_by_height_and_orientation():
-    """The house preset's walls: a group's texels lie at one height (within the texels' spacing) on
-    one kind of surface, and a row runs round the building (texels of facades facing apart); the
-    roof's slopes and the walls never share a group."""
-    from ipm.generators import get_generator
-    from ipm.uv import level_rows
-
-    gen = get_generator("buildings")
-    mesh = gen.mesh(gen.presets["house"], 2)
-    walls, roof = gen.part_names.index("walls"), gen.part_names.index("roof")
-    groups, by_part = {}, {}
-    for part in (walls, roof):
-        sel = mesh.labels == part
-        tx = texels(mesh.vertices, mesh.faces[sel], mesh.uv[sel], 128)
-        groups[part] = level_rows(tx, 128)[tx.rows, tx.cols]
-        by_part[part] = tx
-        assert (groups[part] >= 0).all()
-    tx, g = by_part[walls], groups[walls]
-    big = np.flatnonzero(np.bincount(g) > 50)
-    assert len(big) > 10
-    for k in big:
-        same = g == k
-        assert np.ptp(tx.points[same, 1]) < 0.05
-        upright = np.abs(tx.normals[same, 1]) < 0.2
-        assert upright.all() or not upright.any()
-        if upright.all():  # a row round the building: facades facing apart
-            assert (tx.normals[same] @ tx.normals[same][0]).min() < -0.9
-    slopes = (by_part[roof].normals[:, 1] > 0.2) & (by_part[roof].normals[:, 1] < 0.98)
-    assert slopes.any() and not set(groups[roof][slopes]) & set(groups[roof][~slopes])
 
 
 def test_pad_gives_the_gutter_its_nearest_chart_colour():

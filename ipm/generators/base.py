@@ -216,11 +216,10 @@ class Generator:
         means nothing for it). Default: False."""
         return False
 
-    def texture_symmetry(self, part: int, res: int, texels=None) -> np.ndarray | None:
+    def texture_symmetry(self, part: int, res: int) -> np.ndarray | None:
         """Texels of part ``part``'s ``res`` square texture grouped so that a group's texels look
         alike (``ipm.texture.fill`` fills an unseen texel from its group), -1 for none; None where
-        the generator knows no symmetry. ``texels``: the part's covered texels on the fitted mesh
-        (``ipm.uv.Texels``, world frame, y up), for a grouping by where they lie. Default: None."""
+        the generator knows no symmetry. Default: None."""
         return None
 
     def seen_counts(self, yaw: float, to_cameras) -> list[str]:

@@ -162,7 +162,7 @@ class Dishes(Generator):
         """A body of revolution without a handle."""
         return not self.topology_key(x)[0]
 
-    def texture_symmetry(self, part: int, res: int, texels=None) -> np.ndarray:
+    def texture_symmetry(self, part: int, res: int) -> np.ndarray:
         """A part's texels grouped by the revolution (``ipm.texture.fill``): a row of the unrolled
         body or tube (one height round the axis), a ring of a bottom or cap disc."""
         (u0, v0, u1, v1), discs = _atlases()[part]

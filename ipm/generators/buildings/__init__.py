@@ -39,7 +39,6 @@ from ipm.generators.buildings.table import (BALCONIES, DISCRETE, DOOR, FLAT, FRA
                                             SALTBOX, SPEC, T_PLAN, U_PLAN,
                                             WALLS, WINDOWS, WINGS, wall_top, wing_top)
 from ipm.io.semantic import BUILDING_LABELS
-from ipm.uv import level_rows
 
 __all__ = ["Buildings", "PARTS", "WALLS", "WINDOWS", "FRAMES", "ROOF", "DOOR", "BALCONIES", "FLAT", "GABLE", "HIP"]
 
@@ -77,14 +76,6 @@ class Buildings(Generator):
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
     facing = {f"windows_{facade}": normal for facade, (_, normal) in FACADES.items()}
     presets = {}  # filled below from named edits of the defaults
-    level_rows = False
-    """The texture stage fills an unseen texel from the seen ones at its height and orientation
-    round the building (``texture_symmetry``; docs/decisions.md, "Rows round a building")."""
-
-    def texture_symmetry(self, part: int, res: int, texels=None):
-        """A part's texels at one height and orientation round the building (``ipm.uv.level_rows``:
-        a plinth, courses, a band under the eaves), where ``level_rows`` is on and the texels given."""
-        return level_rows(texels, res) if self.level_rows and texels is not None else None
 
     def topology_key(self, x):
         return tuple(int(round(float(x[self.spec.index[n]]))) for n in DISCRETE)
