@@ -24,6 +24,7 @@ import numpy as np
 
 from ipm.errors import UserError
 from ipm.learned.segmenter import FORMAT, SEG_RES, WIDTHS, UNet, network_input, probabilities, read, shipped_path
+from ipm.metrics.silhouette import view_ious
 from ipm.settings import Range, Settings, at_least
 
 SEGMENTER_SEED_BASE = 20_000_000
@@ -207,9 +208,7 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
     losses = [float(v) for v in losses[-50:]]
     held = None
     if settings.held_out:  # each held-out photo's mask IoU (1 where both are empty)
-        pred, truth = probabilities(model, images[n:]) > 0.5, data["mask"][n:]
-        union = (pred | truth).sum((1, 2))
-        held = np.where(union > 0, (pred & truth).sum((1, 2)) / np.maximum(union, 1), 1.0)
+        held = view_ious(probabilities(model, images[n:]) > 0.5, data["mask"][n:] > 0.5)
     meta = {"seed": seed, "settings": asdict(settings), "res": model.res,
             "widths": [a.out_channels for a, _ in model.down], "generators": list(GENERATORS),
             "photos": data.get("ranges", []), "final_loss": float(np.mean(losses)), "device": jax.default_backend(),

@@ -1,12 +1,20 @@
 """Mitsuba-independent evaluation metrics: silhouette IoU (world frame and after alignment), volumetric IoU,
-Chamfer, triangle quality, parameter recovery."""
+Chamfer, triangle quality, parameter recovery. The names below load their module on first use, so that
+a module of the package (``ipm.metrics.silhouette``'s mask IoU) is read without the others' meshes
+library (trimesh; absent on the GPU machine)."""
+from __future__ import annotations
 
-from .align import align_similarity, shape_iou
-from .evaluate import chamfer, evaluate_meshes, preview_png, triangle_quality
-from .silhouette import fibonacci_cameras, raycast_masks, silhouette_iou, silhouette_masks
-from .volume import occupancy, volumetric_iou
+from importlib import import_module
 
-__all__ = [
-    "align_similarity", "chamfer", "evaluate_meshes", "fibonacci_cameras", "occupancy", "preview_png", "raycast_masks",
-    "shape_iou", "silhouette_iou", "silhouette_masks", "triangle_quality", "volumetric_iou",
-]
+_WHERE = {"align_similarity": "align", "shape_iou": "align", "chamfer": "evaluate", "evaluate_meshes": "evaluate",
+          "preview_png": "evaluate", "triangle_quality": "evaluate", "fibonacci_cameras": "silhouette",
+          "raycast_masks": "silhouette", "silhouette_iou": "silhouette", "silhouette_masks": "silhouette",
+          "occupancy": "volume", "volumetric_iou": "volume"}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -6,11 +6,14 @@ independent of the (differentiable) Mitsuba renderer used for optimisation.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from ipm.runtime import thread_count
+
+if TYPE_CHECKING:
+    import trimesh
 
 FOV_DEG = 40.0
 DISTANCE_MARGIN = 1.25  # camera distance = margin * r / sin(fov / 2): the sphere fills 80 % of the view
@@ -36,6 +39,8 @@ def check_reference(mesh: trimesh.Trimesh) -> None:
 
 def finite_part(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Drop faces touching non-finite vertices, so a diverged reconstruction scores low instead of crashing."""
+    import trimesh
+
     ok = np.isfinite(mesh.vertices).all(axis=1)
     if ok.all():
         return mesh
