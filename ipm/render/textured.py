@@ -70,23 +70,32 @@ def lit_scene(shapes: dict, c2w, fov_x, width, height, integrator: str = "path")
     """A Mitsuba scene of ``shapes`` (name -> Mitsuba shape) under the reference lighting (a dim
     constant sky and a sun) with a sensor per camera; ``integrator`` path (rendering) or prb
     (differentiable in the materials), three bounces."""
+    lights = {"env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.35}},
+              "sun": {"type": "directional", "direction": [-0.4, -1.0, -0.3],
+                      "irradiance": {"type": "rgb", "value": 2.5}}}
+    return _scene({"type": integrator, "max_depth": 3}, shapes, lights, c2w, fov_x, width, height)
+
+
+def _scene(integrator: dict, shapes: dict, lights: dict, c2w, fov_x, width, height):
+    """A Mitsuba scene of ``shapes`` and ``lights`` with ``integrator`` and a sensor per camera."""
     import mitsuba as mi
 
-    scene = {"type": "scene", "integrator": {"type": integrator, "max_depth": 3}, **shapes,
-             "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.35}},
-             "sun": {"type": "directional", "direction": [-0.4, -1.0, -0.3],
-                     "irradiance": {"type": "rgb", "value": 2.5}}}
+    scene = {"type": "scene", "integrator": integrator, **shapes, **lights}
     for i, m in enumerate(c2w):
         scene[f"sensor_{i:03d}"] = sensor_dict(m, fov_x, width, height)
     return mi.load_dict(scene)
 
 
-def _render_scene(shapes: dict, c2w, fov_x, width, height, spp):
-    """Render ``shapes`` (name -> Mitsuba shape) under the reference lighting from each camera."""
+def _render_all(scene, n: int, spp: int) -> np.ndarray:
+    """The scene's images from each of its ``n`` sensors (n, H, W, channels), seeded by the sensor."""
     import mitsuba as mi
 
-    scene = lit_scene(shapes, c2w, fov_x, width, height)
-    return np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=i)) for i in range(len(c2w))])
+    return np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=i)) for i in range(n)])
+
+
+def _render_scene(shapes: dict, c2w, fov_x, width, height, spp):
+    """Render ``shapes`` (name -> Mitsuba shape) under the reference lighting from each camera."""
+    return _render_all(lit_scene(shapes, c2w, fov_x, width, height), len(c2w), spp)
 
 
 def render_painted(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray, fov_x: float, width: int,
@@ -101,14 +110,9 @@ def render_albedo(vertices, faces, labels, uv, textures: dict, c2w: np.ndarray, 
                   height: int, spp: int = 16) -> np.ndarray:
     """The albedo (n, height, width, 3) each pixel sees first, filtered over the pixel as
     :func:`render_painted` filters its radiance (Mitsuba's ``aov`` integrator; 0 off the mesh)."""
-    import mitsuba as mi
-
-    scene = {"type": "scene", "integrator": {"type": "aov", "aovs": "albedo:albedo"},
-             **painted_shapes(vertices, faces, labels, uv, textures)}
-    for i, m in enumerate(c2w):
-        scene[f"sensor_{i:03d}"] = sensor_dict(m, fov_x, width, height)
-    scene = mi.load_dict(scene)
-    return np.stack([np.array(mi.render(scene, sensor=i, spp=spp, seed=i)) for i in range(len(c2w))])
+    scene = _scene({"type": "aov", "aovs": "albedo:albedo"}, painted_shapes(vertices, faces, labels, uv, textures),
+                   {}, c2w, fov_x, width, height)
+    return _render_all(scene, len(c2w), spp)
 
 
 def render_glb(path, c2w: np.ndarray, fov_x: float, width: int, height: int, spp: int = 64) -> np.ndarray:
