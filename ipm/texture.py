@@ -72,20 +72,21 @@ def visible(scene, origin: np.ndarray, points: np.ndarray, tolerance: float) -> 
     return np.isfinite(t) & (t >= dist - tolerance)
 
 
-def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.ndarray, c2w: np.ndarray,
-            fov_x: float, res: int = TEXTURE_RES, scene=None) -> tuple[np.ndarray, np.ndarray, Texels]:
-    """Part ``part``'s texture (res, res, 3) linear albedo from the photos (n, H, W, 3) linear,
-    their masks and the mesh's shading in them ((n, H, W), or per channel (n, H, W, 3)), and the
-    weight each texel got (0: no view saw it)."""
+def sightings(mesh, part: int, masks: np.ndarray, c2w: np.ndarray, fov_x: float, res: int = TEXTURE_RES,
+              scene=None) -> tuple[Texels, list]:
+    """Part ``part``'s covered texels and, per view, those it sees: facing it, the first surface a
+    ray from its camera meets and wholly inside its mask (not on the rim), as (view index, texel
+    indices, their pixel positions, the cosines at them). What the photos' shading does not change,
+    found once for every projection."""
     from ipm.render.cameras import project as to_pixels
 
     sel = mesh.labels == part
     tx = texels(mesh.vertices, mesh.faces[sel], mesh.uv[sel], res)
     scene = mesh_scene(mesh.vertices, mesh.faces) if scene is None else scene
     size = float(np.linalg.norm(np.ptp(mesh.vertices, 0)))
-    total, weight = np.zeros((len(tx.points), 3)), np.zeros(len(tx.points))
-    h, w = photos.shape[1:3]
-    for photo, mask, shade, cam in zip(photos, masks, shading, c2w):
+    h, w = masks.shape[1:3]
+    seen_by = []
+    for view, (mask, cam) in enumerate(zip(masks, c2w)):
         origin = cam[:3, 3]
         towards = origin - tx.points
         cos = np.einsum("nj,nj->n", tx.normals, towards) / np.maximum(np.linalg.norm(towards, axis=1), 1e-12)
@@ -95,20 +96,30 @@ def project(mesh, part: int, photos: np.ndarray, masks: np.ndarray, shading: np.
         if len(idx) == 0:
             continue
         idx = idx[visible(scene, origin, tx.points[idx], 2e-3 * size)]
-        core = _bilinear(_eroded(mask), xy[idx]) > 0.99  # a pixel wholly the object's, not its edge
-        idx = idx[core]
-        lit = _bilinear(shade, xy[idx])
+        idx = idx[_bilinear(_eroded(mask), xy[idx]) > 0.99]  # a pixel wholly the object's, not its edge
+        seen_by.append((view, idx, xy[idx], cos[idx]))
+    return tx, seen_by
+
+
+def project(tx: Texels, seen_by: list, photos: np.ndarray, shading: np.ndarray,
+            res: int = TEXTURE_RES) -> tuple[np.ndarray, np.ndarray]:
+    """A part's texture (res, res, 3) linear albedo from the photos (n, H, W, 3) linear and the
+    mesh's shading in them ((n, H, W), or per channel (n, H, W, 3)) at the texels the views see
+    (:func:`sightings`), and the weight each texel got (0: no view saw it)."""
+    total, weight = np.zeros((len(tx.points), 3)), np.zeros(len(tx.points))
+    for view, idx, xy, cos in seen_by:
+        lit = _bilinear(shading[view], xy)
         lit = lit[:, None] if lit.ndim == 1 else lit
         ok = lit.mean(1) > MIN_SHADING
-        idx, lit = idx[ok], lit[ok]
-        wgt = cos[idx] * lit.mean(1)
-        total[idx] += wgt[:, None] * _bilinear(photo, xy[idx]) / lit
+        idx, xy, lit = idx[ok], xy[ok], lit[ok]
+        wgt = cos[ok] * lit.mean(1)
+        total[idx] += wgt[:, None] * _bilinear(photos[view], xy) / lit
         weight[idx] += wgt
     texture = np.zeros((res, res, 3))
     seen = np.zeros((res, res))
     texture[tx.rows, tx.cols] = total / np.maximum(weight, 1e-12)[:, None]
     seen[tx.rows, tx.cols] = weight
-    return texture, seen, tx
+    return texture, seen
 
 
 def _eroded(mask: np.ndarray) -> np.ndarray:
@@ -167,15 +178,15 @@ def paint(generator, mesh, photos: np.ndarray, masks: np.ndarray, c2w: np.ndarra
     else:
         raise UserError(f"unknown lighting {lighting!r} (known: reference, or none)")
     scene = mesh_scene(mesh.vertices, mesh.faces)
+    parts = {int(part): sightings(mesh, int(part), masks, c2w, fov_x, res, scene) for part in np.unique(mesh.labels)}
+    groups = {part: generator.texture_symmetry(part, res) for part in parts}
     for k in range(passes):
         if k:
             shading = painted_shading(mesh, textures, c2w, fov_x, w, h, spp, shading)
         textures, seen_share = {}, {}
-        for part in np.unique(mesh.labels):
-            part = int(part)
-            texture, seen, tx = project(mesh, part, photos, masks, shading, c2w, fov_x, res, scene)
-            groups = generator.texture_symmetry(part, res)
-            textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups), 0.0, 1.0),
+        for part, (tx, seen_by) in parts.items():
+            texture, seen = project(tx, seen_by, photos, shading, res)
+            textures[part] = pad(np.clip(fill(texture, seen, (tx.rows, tx.cols), groups[part]), 0.0, 1.0),
                                  (tx.rows, tx.cols))
             seen_share[part] = float((seen[tx.rows, tx.cols] > 0).mean()) if len(tx.rows) else 0.0
     if lighting == "reference" and refinement is not None and refinement.stages:
