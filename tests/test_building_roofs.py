@@ -140,36 +140,3 @@ def test_wing_roofs_of_one_pitch_meet_as_a_straight_skeleton(gen, plan):
     height = 5.0 - scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy() - top
     assert inside.sum() > 1000
     np.testing.assert_allclose(height[inside], pitch * expected[inside], atol=2e-4)
-
-
-def test_the_race_takes_the_commoner_of_two_roofs_the_view_scores_alike(gen):
-    """``decide_prior``: a gable 2 % above a mansard's score wins with a 3 % margin (gables are
-    the commonest roof, mansards the rarest) and is recorded as the prior's choice; 5 % apart, or
-    with no margin, the lowest score wins."""
-    from ipm.problem import Problem
-    from ipm.profiles import get_profile
-    from ipm.search.moves.roof import RoofSettings, decide
-    from ipm.search.trial import Trial
-
-    problem = Problem(gen, np.zeros(3), 1.0)
-    i, kinds = gen.spec.index["roof_type"], len(ROOF_KINDS) - 1
-    prior = gen.categorical_prior("roof_type")
-    mansard = ROOF_KINDS.index("mansard")
-    assert prior.sum() == pytest.approx(1.0) and prior.argmax() == GABLE and prior.argmin() == mansard
-    assert gen.categorical_prior("template") is None
-    z = problem.initial_z(gen.spec.to_unit(_house(gen, roof_type=FLAT)), 0.3)
-
-    def chosen(gap, margin):
-        scores = {mansard: 1.0, GABLE: 1.0 + gap}
-        score = lambda v, seed=None: (scores.get(round(v[i] * kinds), 2.0), np.zeros_like(v))  # noqa: E731
-        records = []
-        settings = get_profile("default", decide_steps=1, decide_rounds=1, decide_shares=(),
-                               decide_prior=margin).of(RoofSettings)
-        trial = Trial(problem, score, score, lr=0.05, reject_ratio=1.2, record=lambda n, loss: records.append(n))
-        best = decide(trial, z, settings)
-        return round(best[i] * kinds), [r for r in records if r.startswith("prior: ")]
-
-    kind, records = chosen(0.02, 0.03)
-    assert kind == GABLE and records and records[0].startswith("prior: roof_type=1")
-    assert chosen(0.05, 0.03) == (mansard, [])
-    assert chosen(0.02, 0.0) == (mansard, [])

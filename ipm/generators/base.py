@@ -216,12 +216,6 @@ class Generator:
         means nothing for it). Default: False."""
         return False
 
-    def categorical_prior(self, name: str) -> np.ndarray | None:
-        """How often the sampler draws each value of the categorical parameter ``name`` (shares
-        summing to 1), or None where it knows none: the roof race takes the commonest of kinds the
-        view cannot tell apart (``ipm.search.moves.roof``). Default: None."""
-        return None
-
     def texture_symmetry(self, part: int, res: int) -> np.ndarray | None:
         """Texels of part ``part``'s ``res`` square texture grouped so that a group's texels look
         alike (``ipm.texture.fill`` fills an unseen texel from its group), -1 for none; None where

@@ -112,10 +112,6 @@ class Buildings(Generator):
         out[i], out[j] = x[j], x[i]
         return self.spec.clip(out)
 
-    def categorical_prior(self, name: str) -> np.ndarray | None:
-        """The roof kinds' shares the sampler draws (``ROOF_WEIGHTS``: OpenStreetMap's, tempered)."""
-        return np.asarray(ROOF_WEIGHTS, np.float64) if name == "roof_type" else None
-
     def split_roof(self, x, share):
         """A pitched roof ``share`` of the height (walls, ground-floor extra and roof together),
         the storeys the rest: the floor height takes up the change, or a storey fewer or more

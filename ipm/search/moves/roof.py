@@ -37,10 +37,6 @@ class RoofSettings(Settings):
     """Where a categorical parameter has more values than this, a first round gives every value as it stands
     ``decide_steps``, and only the best ``decide_kinds`` go on to be tried turned and with the height shares;
     0: every value with its turns and shares from the start (docs/decisions.md, 'Roof race')."""
-    decide_prior: Annotated[float, at_least(0.0)] = 0.0
-    """Among the race's last candidates whose score is within this share of the lowest, the one whose
-    value the generator's sampler draws most often (``Generator.categorical_prior``); 0: the lowest
-    score (docs/decisions.md, 'Roof race')."""
 
 
 def decide_evaluations(candidates: int, settings: RoofSettings, values: int | None = None) -> int:
@@ -96,24 +92,8 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.nda
                                                 for share, x in splits if x is not None]:
                 pool += [(tag, start)] + ([(f"{tag} turned", recount(turned(problem, start, np.pi / 2)))]
                                           if recount is not None else [])
-        ranked = trial.rounds(pool, settings.decide_steps, settings.decide_rounds, score)
-        z = commonest(ranked, i, levels, gen.categorical_prior(name), settings.decide_prior, trial.record)
+        z = trial.rounds(pool, settings.decide_steps, settings.decide_rounds, score)[0][1]
     return z
-
-
-def commonest(ranked: list[tuple[str, np.ndarray, float]], i: int, levels: int, prior: np.ndarray | None,
-              margin: float, record) -> np.ndarray:
-    """The point of ``ranked`` (name, point, score; lowest first) whose value of gene ``i`` (of
-    ``levels`` values) is the most common by ``prior`` among those scoring within ``margin`` of the
-    lowest, the lowest score of that value; the lowest where there is no prior or no margin. A
-    choice the prior changes is recorded as ``prior: NAME``."""
-    if prior is None or margin <= 0:
-        return ranked[0][1]
-    near = [c for c in ranked if c[2] <= ranked[0][2] * (1 + margin)]
-    pick = max(near, key=lambda c: prior[int(round(c[1][i] * (levels - 1)))])  # the first of equals: the lowest
-    if pick is not ranked[0]:
-        record(f"prior: {pick[0]}", pick[2])
-    return pick[1]
 
 
 @register
