@@ -148,3 +148,46 @@ def test_compile_profile_records_a_process_it_starts(tmp_path, monkeypatch):
     assert any(p["program"] == "jit_sine_gram" and p["compiles"] == 1 for p in summary["programs"]), summary
     assert all(r["program"] != "jit_sine_gram" for r in summary["same_shapes"]), summary  # one compile
     assert summary["tests"][0]["test"].startswith("tests/test_bench.py::test_compile_profile_records"), summary
+
+
+def test_paired_compares_a_tagged_row_with_its_twin_by_case_and_seed(tmp_path, capsys):
+    """Each tagged row meets its untagged twin on the same case and seed: the paired mean and SE,
+    each class and family's means, the worst case; a run without a twin is left out and counted;
+    bad input is one line and exit 2."""
+    import json
+
+    import pandas as pd
+
+    paired = _script("paired")
+    rows = []
+    for case, gen, fam, base, cand in [("cup_1", "dishes", "in", (0.90, 0.92), (0.91, 0.92)),
+                                       ("cup_ext", "dishes", "out", (0.80, 0.70), (0.80, 0.60)),
+                                       ("building_1", "buildings", "in", (0.95, 0.85), (0.96, 0.86))]:
+        for seed in (0, 1):
+            rows.append({"row": "diff_1v", "case": case, "generator": gen, "family": fam, "seed": seed,
+                         "iou_mean": base[seed]})
+            rows.append({"row": "diff_1v_prior", "case": case, "generator": gen, "family": fam, "seed": seed,
+                         "iou_mean": cand[seed]})
+    rows.append({"row": "diff_1v_prior", "case": "cup_2", "generator": "dishes", "family": "in", "seed": 0,
+                 "iou_mean": 0.5})
+    rows.append({"row": "diff_1v_maskedgep2px", "case": "cup_1", "generator": "dishes", "family": "in", "seed": 0,
+                 "iou_mean": 0.5})
+    table = pd.DataFrame(rows)
+    assert paired.twins(list(table["row"].drop_duplicates())) == [("diff_1v", "diff_1v_prior")]
+    r = paired.compare(table, "diff_1v", "diff_1v_prior")
+    changes = np.array([0.01, 0.0, 0.0, -0.1, 0.01, 0.01])
+    assert r["metric"] == "iou_mean" and r["pairs"] == 6 and r["left_out"] == 1 and r["moved"] == 4
+    assert r["paired"] == pytest.approx(changes.mean(), abs=1e-4)
+    assert r["se"] == pytest.approx(changes.std(ddof=1) / np.sqrt(6), abs=1e-4)
+    assert r["groups"]["cups out"] == {"cases": 1, "base": 0.75, "cand": 0.7}
+    assert r["groups"]["buildings in"]["cand"] == pytest.approx(0.91)
+    assert r["worst_case"] == {"case": "cup_ext", "change": -0.05}
+    path = tmp_path / "table.csv"
+    table.to_csv(path, index=False)
+    assert paired.main([str(path), "--out", str(tmp_path / "p.json")]) == 0
+    assert "diff_1v_prior against diff_1v on iou_mean: paired -0.0117" in capsys.readouterr().out
+    assert json.loads((tmp_path / "p.json").read_text())[0]["pairs"] == 6
+    assert paired.main([str(tmp_path / "none.csv")]) == 2
+    assert paired.main([str(path), "--pair", "diff_1v", "ngp_16v"]) == 2
+    assert paired.main([str(path), "--metric", "nope"]) == 2
+    assert "no rows ngp_16v" in capsys.readouterr().err
