@@ -11,7 +11,8 @@ backdrop, with the means per class and family.
 Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border),
 ``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut), ``network``
 (the shipped network's probability above 0.5, no GrabCut) and, for each ``--weights`` file,
-``learned:STEM`` and ``network:STEM`` (the same with those weights), all on the same photographs.
+``learned:STEM`` and ``network:STEM`` (the same with those weights), with ``--held``
+``learned:held`` (``mask_from_photo(release=False)``: nothing released), all on the same photographs.
 Tune nothing on test cases: the defaults are the dev cups and buildings.
 """
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 DEV = ["cup_1", "cup_2", "cup_d1", "cup_d2", "cup_d3", "cup_d4", "cup_bowl", "cup_c_mug", "cup_c_mug_steep", "cup_ext",
+       "cup_cocktail", "cup_egg", "cup_flute", "cup_stein", "cup_sundae", "cup_teacup",
        "building_1", "building_d3", "building_d9", "building_d11", "building_d20", "building_d25", "building_annex",
        "building_ext", "building_t_house"]
 
@@ -98,12 +100,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="results/bench/segmentation.json")
     ap.add_argument("--weights", nargs="*", default=[], help="other weights of the learned segmenter to score beside "
                     "the shipped ones")
+    ap.add_argument("--held", action="store_true", help="score the learned path without the object's colours "
+                    "releasing what the network took for ground beside it (learned:held)")
     ap.add_argument("--plain", action="store_true", help="score the hemi layout's input view (a plain background) "
                     "instead of the photographs")
     args = ap.parse_args(argv)
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)
     segmenters = {"colour": mask_from_image, "learned": mask_from_photo, "network": network_mask}
+    if args.held:
+        segmenters["learned:held"] = lambda img: mask_from_photo(img, release=False)
     for path in args.weights:
         segmenters[f"learned:{Path(path).stem}"] = lambda img, model=load(path): mask_from_photo(img, model)
         segmenters[f"network:{Path(path).stem}"] = lambda img, model=load(path): network_mask(img, model)
@@ -127,7 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     for group, by in out["summary"].items():
         print(f"{group:16s}", "  ".join(f"{s} {v['mean']:.3f} (worst {v['worst']:.3f}, n {v['n']})" for s, v in by.items()))
     for name in (n for n in segmenters if n.startswith("learned:")):  # other weights against the shipped ones
-        d = np.array([r[name] - r["learned"] for r in rows])
+        d = np.array([r[name] - r["learned"] for r in rows])  # (learned:held: negative where the release helps)
         se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
         print(f"{name} - learned: paired {d.mean():+.4f} (SE {se:.4f}; {(d > 0.005).sum()} better, "
               f"{(d < -0.005).sum()} worse by more than 0.005)")

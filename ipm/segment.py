@@ -17,6 +17,13 @@ from ipm.errors import UserError
 
 SURE = 0.02
 """Learned probabilities below this (above one minus it) fix a pixel as background (object) for GrabCut."""
+RELEASE = True
+"""Whether :func:`mask_from_photo` lets the object's colours release what the network took for
+ground (:func:`_released`; docs/decisions.md, "The object's colours release what the network took
+for ground")."""
+RELEASE_REACH = 0.75
+"""How far from the mask (times the square root of its area) a pixel may be released; the ground's
+colours are taken beyond it."""
 MARGIN = 2.0
 """A pixel is object where its distance to the background model is this many times the distance
 all but 0.5 % of the border stays under (at least 1: one CIELAB unit on a flat background)."""
@@ -84,11 +91,13 @@ def mask_from_image(rgb: np.ndarray) -> np.ndarray:
     return _cleaned(dist > threshold)
 
 
-def mask_from_photo(rgb: np.ndarray, model=None) -> np.ndarray:
+def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None) -> np.ndarray:
     """Object mask (H, W) float32 in {0, 1} of a photograph (H, W, 3; uint8, or float in [0, 1]):
     the learned segmenter's probability (``ipm.learned.segmenter``, ``model`` or the shipped one:
     it tells the object from its ground, shadow and backdrop) starts OpenCV's GrabCut (the confident
-    object and background fixed, the rest probable), which sets the edges at the photo's size."""
+    object and background fixed, the rest probable), which sets the edges at the photo's size;
+    with ``release`` (default :data:`RELEASE`) the object's colours then take back confident
+    background that looks like it (:func:`_released`)."""
     import cv2
 
     from ipm.learned.segmenter import probability
@@ -98,12 +107,56 @@ def mask_from_photo(rgb: np.ndarray, model=None) -> np.ndarray:
         raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
     img8 = np.ascontiguousarray(rgb[..., :3] if rgb.dtype == np.uint8 else
                                 np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
+    release = RELEASE if release is None else release
     prob = probability(img8, model)
     gc = np.select([prob < SURE, prob > 1 - SURE, prob > 0.5], [cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_FGD],
                    cv2.GC_PR_BGD).astype(np.uint8)
     if not (gc == cv2.GC_FGD).any() and not (gc == cv2.GC_PR_FGD).any():
         raise UserError("the segmenter finds no object in the photo: give a mask")
+    mask = _grab_cut(img8, gc)
+    return _released(img8, gc, mask) if release else mask
+
+
+def _grab_cut(img8: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """OpenCV's GrabCut from GrabCut ``labels`` (left as they were), its mask cleaned."""
+    import cv2
+
+    gc = labels.copy()
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(0)
     cv2.grabCut(img8, gc, None, bgd, fgd, 5, cv2.GC_INIT_WITH_MASK)
     return _cleaned((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD))
+
+
+def _released(img8: np.ndarray, labels: np.ndarray, mask: np.ndarray, passes: int = 2) -> np.ndarray:
+    """``mask`` grown by the confident background (``labels``) that looks like the object: twice,
+    the object's chroma (five k-means centres of CIELAB a, b over the mask; a shadow on the ground
+    barely changes it) against the ground's (eight over the confident background beyond
+    :data:`RELEASE_REACH`); a pixel within reach nearer the object's than half its distance to the
+    ground's becomes probable object, and GrabCut runs again from the labels so changed."""
+    import cv2
+    from scipy.ndimage import binary_dilation
+
+    ab = cv2.cvtColor(img8, cv2.COLOR_RGB2LAB).reshape(-1, 3)[:, 1:].astype(np.float32)
+    ground = labels == cv2.GC_BGD
+    stop = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
+
+    def centres(pixels: np.ndarray, k: int) -> np.ndarray | None:
+        if len(pixels) < k:
+            return None
+        cv2.setRNGSeed(0)
+        return cv2.kmeans(pixels, k, None, stop, 2, cv2.KMEANS_PP_CENTERS)[2]
+
+    def nearest(c: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(ab[:, None] - c[None], axis=2).min(1).reshape(mask.shape)
+
+    for _ in range(passes):
+        inside = mask > 0.5
+        near = binary_dilation(inside, iterations=max(int(RELEASE_REACH * np.sqrt(inside.sum())), 1))
+        obj, bg = centres(ab[inside.ravel()], 5), centres(ab[(ground & ~near).ravel()], 8)
+        if obj is None or bg is None:
+            return mask
+        gc = labels.copy()
+        gc[ground & near & (nearest(obj) < 0.5 * nearest(bg))] = cv2.GC_PR_FGD
+        mask = _grab_cut(img8, gc)
+    return mask

@@ -248,3 +248,32 @@ def test_the_shipped_segmenter_is_the_default_budgets_seed_0():
     assert record["format"] == FORMAT and record["seed"] == 0
     assert record["settings"] == asdict(PROFILES["default"])
     assert record["res"] == SEG_RES and tuple(record["widths"]) == WIDTHS
+
+
+def test_the_objects_colours_take_back_a_foot_the_network_left_on_the_ground():
+    """``ipm.segment._released``: a purple bowl whose stem and foot the labels fix as ground (as
+    the network does with parts it never saw) gets them back, and its grey shadow, darker than
+    the floor but of its chroma, stays ground."""
+    import cv2
+
+    from ipm.segment import _grab_cut, _released
+
+    rng = np.random.default_rng(0)
+    img = np.clip(150 + rng.normal(0, 6, (96, 96, 3)), 0, 255)
+    purple = np.array([120, 70, 190])
+    y, x = np.mgrid[:96, :96]
+    bowl = (np.hypot((x - 48) / 22, (y - 30) / 14) < 1) & (y >= 30) | ((y >= 18) & (y < 30) & (abs(x - 48) < 22))
+    stem = (y >= 43) & (y < 54) & (abs(x - 48) < 3)
+    foot = (np.hypot((x - 48) / 14, (y - 56) / 4) < 1)
+    shadow = (np.hypot((x - 70) / 16, (y - 58) / 5) < 1) & ~foot
+    img[shadow] *= 0.45
+    for part in (bowl, stem, foot):
+        img[part] = purple + rng.normal(0, 6, (part.sum(), 3))
+    img8 = img.astype(np.uint8)
+    labels = np.where(bowl, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
+    mask = _grab_cut(img8, labels) > 0.5
+    assert not (mask & foot).any()
+    grown = _released(img8, labels, mask.astype(np.float32)) > 0.5
+    truth = bowl | stem | foot
+    assert (grown & truth).sum() / (grown | truth).sum() > 0.95
+    assert not (grown & shadow).any()
