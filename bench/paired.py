@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-CLASS = {"dishes": "cups", "buildings": "buildings", "trees": "trees"}
 TAGGED = re.compile(r"(?P<base>[A-Za-z0-9_]+?_[0-9]+v)_(?P<tag>[a-z0-9]+)")
 
 
@@ -42,17 +41,16 @@ def twins(rows: list[str]) -> list[tuple[str, str]]:
 
 def compare(table: pd.DataFrame, base: str, cand: str, metric: str | None = None) -> dict:
     """The paired comparison of row ``cand`` against row ``base`` on ``metric`` (default: the
-    rows' headline, ``ipm.table.scored_by``)."""
-    if metric is None:
-        from ipm.table import scored_by
+    rows' headline, ``ipm.table.scored_by``); ``ValueError`` where the rows share no case and seed."""
+    from ipm.table import CLASS_NAMES, scored_by
 
-        metric = scored_by(base)
+    metric = scored_by(base) if metric is None else metric
     cols = ["case", "seed", "generator", "family", metric]
     a = table.loc[table["row"] == base, cols].dropna(subset=[metric])
     b = table.loc[table["row"] == cand, ["case", "seed", metric]].dropna(subset=[metric])
     pairs = a.merge(b, on=["case", "seed"], suffixes=("_base", "_cand"))
     if pairs.empty:
-        raise SystemExit(f"paired: rows {base} and {cand} share no case and seed with {metric}")
+        raise ValueError(f"rows {base} and {cand} share no case and seed with {metric}")
     diff = pairs[f"{metric}_cand"] - pairs[f"{metric}_base"]
     pairs = pairs.assign(change=diff)
     cases = pairs.groupby("case", sort=False).agg(generator=("generator", "first"), family=("family", "first"),
@@ -60,7 +58,7 @@ def compare(table: pd.DataFrame, base: str, cand: str, metric: str | None = None
                                                   change=("change", "mean"), seeds=("seed", "size"))
     groups = {}
     for (gen, fam), part in cases.groupby(["generator", "family"], sort=False):
-        groups[f"{CLASS.get(gen, gen)} {fam}"] = {"cases": len(part), "base": round(float(part["base"].mean()), 4),
+        groups[f"{CLASS_NAMES.get(gen, gen)} {fam}"] = {"cases": len(part), "base": round(float(part["base"].mean()), 4),
                                                  "cand": round(float(part["cand"].mean()), 4)}
     worst = cases["change"].idxmin()
     n = len(diff)
@@ -112,7 +110,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"paired: {'no rows ' + ', '.join(unknown) if unknown else 'no tagged row with its twin'} in {path}",
               file=sys.stderr)
         return 2
-    results = [compare(table, base, cand, args.metric) for base, cand in pairs]
+    try:
+        results = [compare(table, base, cand, args.metric) for base, cand in pairs]
+    except ValueError as err:
+        print(f"paired: {err} in {path}", file=sys.stderr)
+        return 2
     print("\n\n".join(report(r) for r in results))
     if args.out:
         from ipm.io.atomic import atomic_path

@@ -190,4 +190,8 @@ def test_paired_compares_a_tagged_row_with_its_twin_by_case_and_seed(tmp_path, c
     assert paired.main([str(tmp_path / "none.csv")]) == 2
     assert paired.main([str(path), "--pair", "diff_1v", "ngp_16v"]) == 2
     assert paired.main([str(path), "--metric", "nope"]) == 2
-    assert "no rows ngp_16v" in capsys.readouterr().err
+    assert paired.main([str(path), "--pair", "diff_1v", "diff_1v_maskedgep2px"]) == 0  # one pair: no SE
+    table.assign(case=table["case"].where(table["row"] != "diff_1v_maskedgep2px", "cup_9")).to_csv(path, index=False)
+    assert paired.main([str(path), "--pair", "diff_1v", "diff_1v_maskedgep2px"]) == 2
+    err = capsys.readouterr().err
+    assert "no rows ngp_16v" in err and "share no case and seed" in err
