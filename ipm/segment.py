@@ -23,17 +23,22 @@ ground (:func:`_released`; docs/decisions.md, "The object's colours release what
 for ground")."""
 RELEASE_REACH = 0.75
 """How far from the mask (times the square root of its area) a pixel may be released; the ground's
-colours are taken beyond it."""
+colours are taken beyond it (less what is joined to the object: ``_joined``)."""
+BORDER = 0.02
+"""Width of the border frame whose colours are the background's (times the image's shorter side)."""
 MARGIN = 2.0
 """A pixel is object where its distance to the background model is this many times the distance
 all but 0.5 % of the border stays under (at least 1: one CIELAB unit on a flat background)."""
 
 
-def _border(image: np.ndarray, width: int) -> np.ndarray:
-    """The pixels (k, channels) of a frame ``width`` pixels wide around the image."""
-    top, bottom = image[:width].reshape(-1, image.shape[-1]), image[-width:].reshape(-1, image.shape[-1])
-    left, right = image[width:-width, :width], image[width:-width, -width:]
-    return np.concatenate([top, bottom, left.reshape(-1, image.shape[-1]), right.reshape(-1, image.shape[-1])])
+def _frame(shape: tuple[int, ...]) -> np.ndarray:
+    """Boolean (H, W): the image's border frame, :data:`BORDER` of its shorter side wide (at least 2 px)."""
+    h, w = shape[:2]
+    width = max(2, int(round(BORDER * min(h, w))))
+    frame = np.zeros((h, w), bool)
+    frame[:width] = frame[-width:] = True
+    frame[:, :width] = frame[:, -width:] = True
+    return frame
 
 
 def _distance(pixels: np.ndarray, sample: np.ndarray) -> np.ndarray:
@@ -55,8 +60,7 @@ def _border_model(rgb: np.ndarray) -> tuple[np.ndarray, float]:
         raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
     img = rgb[..., :3].astype(np.float64) / (255.0 if rgb.dtype == np.uint8 else 1.0)
     lab = rgb2lab(np.clip(img, 0.0, 1.0))
-    h, w = lab.shape[:2]
-    border = _border(lab, max(2, int(round(0.02 * min(h, w)))))
+    border = lab[_frame(lab.shape)]
     d_border = _distance(border, border)
     border = border[d_border <= np.quantile(d_border, 0.9)]  # the object where it touches the edge
     dist = _distance(lab, border)
@@ -132,8 +136,9 @@ def _released(img8: np.ndarray, labels: np.ndarray, mask: np.ndarray, passes: in
     """``mask`` grown by the confident background (``labels``) that looks like the object: twice,
     the object's chroma (five k-means centres of CIELAB a, b over the mask; a shadow on the ground
     barely changes it) against the ground's (eight over the confident background beyond
-    :data:`RELEASE_REACH`); a pixel within reach nearer the object's than half its distance to the
-    ground's becomes probable object, and GrabCut runs again from the labels so changed."""
+    :data:`RELEASE_REACH`, less the object's far parts: :func:`_joined`); a pixel within reach
+    nearer the object's than half its distance to the ground's becomes probable object, and
+    GrabCut runs again from the labels so changed."""
     import cv2
     from scipy.ndimage import binary_dilation
 
@@ -153,10 +158,24 @@ def _released(img8: np.ndarray, labels: np.ndarray, mask: np.ndarray, passes: in
     for _ in range(passes):
         inside = mask > 0.5
         near = binary_dilation(inside, iterations=max(int(RELEASE_REACH * np.sqrt(inside.sum())), 1))
-        obj, bg = centres(ab[inside.ravel()], 5), centres(ab[(ground & ~near).ravel()], 8)
-        if obj is None or bg is None:
+        obj, edge = centres(ab[inside.ravel()], 5), centres(ab[(ground & ~near & _frame(mask.shape)).ravel()], 8)
+        if obj is None or edge is None:
+            return mask
+        bg = centres(ab[(ground & ~near & ~_joined(inside, nearest(obj) < 0.5 * nearest(edge))).ravel()], 8)
+        if bg is None:
             return mask
         gc = labels.copy()
         gc[ground & near & (nearest(obj) < 0.5 * nearest(bg))] = cv2.GC_PR_FGD
         mask = _grab_cut(img8, gc)
     return mask
+
+
+def _joined(inside: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """The pixels outside ``inside`` joined to it (8-connected) through pixels where ``like`` holds:
+    a part of the object beyond the release's reach (a glass's foot below its stem), kept out of
+    the ground's colours."""
+    from scipy.ndimage import label
+
+    parts, _ = label(like | inside, structure=np.ones((3, 3)))
+    ids = np.unique(parts[inside])
+    return np.isin(parts, ids[ids > 0]) & ~inside

@@ -277,3 +277,32 @@ def test_the_objects_colours_take_back_a_foot_the_network_left_on_the_ground():
     truth = bowl | stem | foot
     assert (grown & truth).sum() / (grown | truth).sum() > 0.95
     assert not (grown & shadow).any()
+
+
+def test_a_foot_beyond_the_release_reach_does_not_colour_the_ground():
+    """``ipm.segment._released``: a glass's foot at the end of a long stem, farther from the
+    bowl's mask than the release reaches, is joined to it through the stem, so its colour stays
+    out of the ground's and the second pass takes it back (``_joined``)."""
+    import cv2
+
+    from ipm.segment import _grab_cut, _joined, _released
+
+    rng = np.random.default_rng(1)
+    img = np.clip(150 + rng.normal(0, 6, (120, 96, 3)), 0, 255)
+    yellow = np.array([200, 180, 60])
+    y, x = np.mgrid[:120, :96]
+    bowl = (np.hypot((x - 48) / 22, (y - 30) / 14) < 1) & (y >= 30) | ((y >= 18) & (y < 30) & (abs(x - 48) < 22))
+    stem = (y >= 43) & (y < 74) & (abs(x - 48) < 3)
+    foot = np.hypot((x - 48) / 16, (y - 76) / 4) < 1
+    for part in (bowl, stem, foot):
+        img[part] = yellow + rng.normal(0, 6, (part.sum(), 3))
+    img8 = img.astype(np.uint8)
+    labels = np.where(bowl, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
+    mask = _grab_cut(img8, labels) > 0.5
+    assert not (mask & foot).any()
+    joined = _joined(mask, stem | foot | bowl)
+    assert joined[foot].all() and not joined[mask].any() and not joined[~(stem | foot | bowl)].any()
+    grown = _released(img8, labels, mask.astype(np.float32)) > 0.5
+    truth = bowl | stem | foot
+    assert (grown & foot).sum() > 0.9 * foot.sum()
+    assert (grown & truth).sum() / (grown | truth).sum() > 0.95
