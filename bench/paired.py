@@ -6,7 +6,7 @@ next to ``{name: diff, views: 1}``) on the dev cases and seeds the rule names, t
     .venv/bin/python bench/paired.py results/table.csv [--pair BASE CANDIDATE ...] [--metric shape_iou]
         [--out results/bench/paired.json]
 
-Every tagged row is compared with its untagged twin (the same method and view count) unless
+Every tagged row is compared with its untagged twin (the same method, view count and masks) unless
 ``--pair`` names the rows. Per pair: the paired change's mean and standard error, each class and
 family's means (the mean over its cases of their seed means) before and after, each case's mean
 change and the worst, and how many pairs moved. The metric is each row's headline (the shape IoU
@@ -17,26 +17,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-TAGGED = re.compile(r"(?P<base>[A-Za-z0-9_]+?_[0-9]+v)_(?P<tag>[a-z0-9]+)")
-
-
 def twins(rows: list[str]) -> list[tuple[str, str]]:
-    """(untagged row, tagged row) for every tagged row whose twin ran (mask-degraded rows aside:
-    the report pairs those with their true masks' row)."""
+    """(untagged row, tagged row) for every tagged row whose twin (the same method, view count
+    and mask degradation, no tag) ran (``ipm.table.untagged``)."""
+    from ipm.table import untagged
+
     present = set(rows)
-    out = []
-    for row in rows:
-        m = TAGGED.fullmatch(row)
-        if m and not m["tag"].startswith("mask") and m["base"] in present:
-            out.append((m["base"], row))
-    return out
+    return [(untagged(row), row) for row in rows if untagged(row) in present]
 
 
 def compare(table: pd.DataFrame, base: str, cand: str, metric: str | None = None) -> dict:

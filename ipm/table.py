@@ -46,16 +46,44 @@ WORDS = {"iou_mean": "world", "shape_iou": "shape"}
 CAMERA_WORDS = {"camera_pitch_err_deg": "pitch error {:.1f}°", "camera_fov_err_pct": "FOV error {:.1f}%",
                 "mask_iou": "mask IoU {:.3f}"}
 """How a camera-withheld row's cell gives the camera's errors (``CAMERA_COLUMNS``)."""
-_ROW_ID = re.compile(r"(?P<name>[a-z0-9_]+?)_(?P<views>[0-9]+)v(_[A-Za-z0-9_]+)?")
+_ROW_PARTS = re.compile(r"(?P<name>[a-z0-9_]+?)_(?P<views>[0-9]+)v(?:_(?P<tag>(?!mask)[a-z0-9]+))?"
+                        r"(?:_mask(?P<mask>[a-z0-9]+))?")
+ROW_ID = "(?!line_)" + re.sub(r"\(\?P<\w+>", "(?:", _ROW_PARTS.pattern)
+"""Row ids of methods (:func:`row_id`), the workflow's constraint on its ``row`` wildcard."""
+
+
+def row_id(entry: dict) -> str:
+    """The row id of a config's methods entry: ``<name>_<views>v``, then ``_<tag>`` if it has one
+    and ``_mask<degradation's slug>`` if it reads degraded masks, e.g. visual_hull_12v, ga_1v_labels,
+    diff_1v_maskedgep2px."""
+    from ipm.degrade import slug
+
+    return (f"{entry['name']}_{entry['views']}v" + (f"_{entry['tag']}" if entry.get("tag") else "")
+            + (f"_mask{slug(entry['mask'])}" if entry.get("mask") else ""))
+
+
+def row_parts(row: str) -> dict | None:
+    """A method's row id (:func:`row_id`) taken apart: its ``name``, ``views``, ``tag`` and ``mask``
+    (the degradation's slug; None where the row has none); None for a row of no method (a
+    reference line's)."""
+    m = re.fullmatch(ROW_ID, row) and _ROW_PARTS.fullmatch(row)
+    return {**m.groupdict(), "views": int(m["views"])} if m else None
+
+
+def untagged(row: str) -> str | None:
+    """The row id of ``row``'s twin without its tag (the same method, views and masks), or None
+    where ``row`` is no method's or has no tag."""
+    m = re.fullmatch(ROW_ID, row) and _ROW_PARTS.fullmatch(row)
+    return row[:m.start("tag") - 1] + row[m.end("tag"):] if m and m["tag"] else None
 
 
 def scored_by(row: str) -> str:
-    """The headline metric of row id ``row`` (``<method>_<N>v[_<tag>]``): its method's
-    ``scored_by``; the world IoU for rows of no catalogued method (reference lines)."""
+    """The headline metric of row id ``row``: its method's ``scored_by``; the world IoU for rows of
+    no catalogued method (reference lines)."""
     from ipm.methods import METHODS
 
-    m = _ROW_ID.fullmatch(row)
-    return METHODS[m["name"]].scored_by if m and m["name"] in METHODS else "iou_mean"
+    parts = row_parts(row)
+    return METHODS[parts["name"]].scored_by if parts and parts["name"] in METHODS else "iou_mean"
 
 
 def headline(row: str, metric: str) -> str:

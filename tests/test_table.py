@@ -153,3 +153,32 @@ def test_a_camera_withheld_row_leads_with_its_shape_iou_the_world_iou_and_camera
     world = np.array(runs["diff_1v"]["cup_t1"])[:, 0]
     assert _md_cells(md, diff)[0] == f"{world.mean():.3f} ± {world.std(ddof=1):.3f} (worst {world.min():.3f})"
     assert "scored by the shape IoU" not in alone_md
+
+
+@pytest.mark.parametrize("entry, row", [
+    ({"name": "visual_hull", "views": 12}, "visual_hull_12v"),
+    ({"name": "ga", "views": 1, "tag": "labels"}, "ga_1v_labels"),
+    ({"name": "diff", "views": 1, "mask": "edge +2 px"}, "diff_1v_maskedgep2px"),
+    ({"name": "diff", "views": 1, "tag": "presets", "mask": "hole"}, "diff_1v_presets_maskhole"),
+])
+def test_a_row_id_is_taken_apart_as_it_was_made(entry, row):
+    """``ipm.table``: the row id a methods entry gets, the workflow's constraint on it, its parts and
+    its untagged twin are one grammar."""
+    import re
+
+    from ipm.table import ROW_ID, row_id, row_parts, untagged
+
+    assert row_id(entry) == row and re.fullmatch(ROW_ID, row)
+    parts = row_parts(row)
+    assert (parts["name"], parts["views"], parts["tag"]) == (entry["name"], entry["views"], entry.get("tag"))
+    assert (parts["mask"] is None) == ("mask" not in entry)
+    assert untagged(row) == (row_id({k: v for k, v in entry.items() if k != "tag"}) if "tag" in entry else None)
+
+
+def test_reference_lines_and_malformed_ids_are_no_methods_rows():
+    import re
+
+    from ipm.table import ROW_ID, row_parts, untagged
+
+    for row in ("line_convex_hull", "diff", "diff_1v_maskx_masky", "diff_v1"):
+        assert row_parts(row) is None and untagged(row) is None and not re.fullmatch(ROW_ID, row)

@@ -12,20 +12,7 @@ config.update(expand_groups(config))  # a group's name in a cases list stands fo
 from ipm.methods import METHODS, row_label
 from ipm.reference_lines import REFERENCE_LINES
 
-METHOD_ROW = "(?!line_)[A-Za-z0-9_]+_[0-9]+v(_[a-z0-9]+)?(_mask[a-z0-9]+)?"
-"""Row ids of methods: the registered name, the number of views, the entry's tag if any and its
-mask degradation if any, e.g. visual_hull_12v, ga_1v_labels, diff_1v_maskedgep2px."""
-
-
-def row_id(m):
-    """The row id of a methods entry (``METHOD_ROW``)."""
-    from ipm.degrade import slug
-
-    return (
-        f"{m['name']}_{m['views']}v"
-        + (f"_{m['tag']}" if m.get("tag") else "")
-        + (f"_mask{slug(m['mask'])}" if m.get("mask") else "")
-    )
+from ipm.table import ROW_ID as METHOD_ROW, row_id
 
 
 wildcard_constraints:
