@@ -23,25 +23,16 @@ class SimplifySettings(Settings):
     at most this share of the object's area in the views: a part that covers a sliver, such as a
     handle standing in for a stem the body cannot make, is not a part the view shows
     (docs/decisions.md, "A part the view barely shows")."""
-    occam_refit: Annotated[int, at_least(0)] = 0
-    """Where the simpler value fails both tests as the fit leaves it, it is given this many Adam steps
-    of the last stage's objective (the rest of the shape free to take the part's place) and both
-    tests again: a handle seen edge-on standing in for a stem goes, the body refitted to the stem."""
 
 
-def simplify(trial, z: np.ndarray, tolerance: float, area: float = 0.0, refit: int = 0) -> np.ndarray:
+def simplify(trial, z: np.ndarray, tolerance: float, area: float = 0.0) -> np.ndarray:
     """Set each discrete parameter to its simplest value (``generator.simplest``: name -> value)
     when that raises the loss by at most ``tolerance`` (relative) or by at most ``area`` times the
     object's share of the image (the pixels the value alone explains, as a share of the object's):
-    a part the views do not support (a handle hidden behind the body) is dropped. Where it fails
-    both, ``refit`` Adam steps from the simpler point (its discrete values held) get a second
-    try. Every side is scored at the same render seeds."""
+    a part the views do not support (a handle hidden behind the body) is dropped. Both sides use
+    the same render seeds."""
     problem = trial.problem
     spec, score = problem.spec, trial.scorer((10_001, 10_002))
-
-    def passes(loss_alt: float, loss: float) -> bool:
-        return loss_alt <= (1.0 + tolerance) * loss or loss_alt - loss <= area * trial.score.object_share
-
     for name, value in getattr(problem.generator, "simplest", {}).items():
         i = spec.index[name]
         if spec.from_unit(z[: problem.n_shape])[i] == value:
@@ -51,13 +42,8 @@ def simplify(trial, z: np.ndarray, tolerance: float, area: float = 0.0, refit: i
         loss, loss_alt = score(z), score(alt)
         trial.record("fit", loss)
         trial.record(f"{name}={value:g}", loss_alt)
-        if passes(loss_alt, loss):
+        if loss_alt <= (1.0 + tolerance) * loss or loss_alt - loss <= area * trial.score.object_share:
             z = alt
-        elif refit:
-            trial.plan(refit)
-            alt, loss_alt = trial.tried(alt, f"{name}={value:g} refitted", refit, score)
-            if passes(loss_alt, loss):
-                z = alt
     return z
 
 
@@ -68,5 +54,5 @@ class Simplify(Move):
     name, phase, settings = "simplify", "end", SimplifySettings
 
     def __call__(self, cand, trial, settings):
-        cand.z = simplify(trial, cand.z, settings.occam_tolerance, settings.occam_area, settings.occam_refit)
+        cand.z = simplify(trial, cand.z, settings.occam_tolerance, settings.occam_area)
         return cand
