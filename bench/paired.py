@@ -23,13 +23,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+
 def twins(rows: list[str]) -> list[tuple[str, str]]:
     """(untagged row, tagged row) for every tagged row whose twin (the same method, view count
     and mask degradation, no tag) ran (``ipm.table.untagged``)."""
     from ipm.table import untagged
 
     present = set(rows)
-    return [(untagged(row), row) for row in rows if untagged(row) in present]
+    pairs = [(untagged(row), row) for row in rows]
+    return [(base, row) for base, row in pairs if base in present]
 
 
 def compare(table: pd.DataFrame, base: str, cand: str, metric: str | None = None) -> dict:
