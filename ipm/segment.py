@@ -41,6 +41,14 @@ def _frame(shape: tuple[int, ...]) -> np.ndarray:
     return frame
 
 
+def _rgb(rgb) -> np.ndarray:
+    """``rgb`` as an array, ``UserError`` unless it is an RGB(A) image of at least 16 x 16."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] < 3 or min(rgb.shape[:2]) < 16:
+        raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
+    return rgb
+
+
 def _distance(pixels: np.ndarray, sample: np.ndarray) -> np.ndarray:
     """Mahalanobis distance of ``pixels`` (..., 3) to the Gaussian of ``sample`` (k, 3)."""
     mean = sample.mean(0)
@@ -55,9 +63,7 @@ def _border_model(rgb: np.ndarray) -> tuple[np.ndarray, float]:
     for an image that is not RGB or when nothing stands out."""
     from skimage.color import rgb2lab
 
-    rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[2] < 3 or min(rgb.shape[:2]) < 16:
-        raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
+    rgb = _rgb(rgb)
     img = rgb[..., :3].astype(np.float64) / (255.0 if rgb.dtype == np.uint8 else 1.0)
     lab = rgb2lab(np.clip(img, 0.0, 1.0))
     border = lab[_frame(lab.shape)]
@@ -106,9 +112,7 @@ def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None) ->
 
     from ipm.learned.segmenter import probability
 
-    rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[2] < 3 or min(rgb.shape[:2]) < 16:
-        raise UserError(f"cannot segment an image of shape {rgb.shape}: needs an RGB image of at least 16 x 16")
+    rgb = _rgb(rgb)
     img8 = np.ascontiguousarray(rgb[..., :3] if rgb.dtype == np.uint8 else
                                 np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
     release = RELEASE if release is None else release
@@ -143,7 +147,7 @@ def _released(img8: np.ndarray, labels: np.ndarray, mask: np.ndarray, passes: in
     from scipy.ndimage import binary_dilation
 
     ab = cv2.cvtColor(img8, cv2.COLOR_RGB2LAB).reshape(-1, 3)[:, 1:].astype(np.float32)
-    ground = labels == cv2.GC_BGD
+    ground, frame = labels == cv2.GC_BGD, _frame(labels.shape)
     stop = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
 
     def centres(pixels: np.ndarray, k: int) -> np.ndarray | None:
@@ -158,14 +162,15 @@ def _released(img8: np.ndarray, labels: np.ndarray, mask: np.ndarray, passes: in
     for _ in range(passes):
         inside = mask > 0.5
         near = binary_dilation(inside, iterations=max(int(RELEASE_REACH * np.sqrt(inside.sum())), 1))
-        obj, edge = centres(ab[inside.ravel()], 5), centres(ab[(ground & ~near & _frame(mask.shape)).ravel()], 8)
+        obj, edge = centres(ab[inside.ravel()], 5), centres(ab[(ground & ~near & frame).ravel()], 8)
         if obj is None or edge is None:
             return mask
-        bg = centres(ab[(ground & ~near & ~_joined(inside, nearest(obj) < 0.5 * nearest(edge))).ravel()], 8)
+        d_obj = nearest(obj)
+        bg = centres(ab[(ground & ~near & ~_joined(inside, d_obj < 0.5 * nearest(edge))).ravel()], 8)
         if bg is None:
             return mask
         gc = labels.copy()
-        gc[ground & near & (nearest(obj) < 0.5 * nearest(bg))] = cv2.GC_PR_FGD
+        gc[ground & near & (d_obj < 0.5 * nearest(bg))] = cv2.GC_PR_FGD
         mask = _grab_cut(img8, gc)
     return mask
 

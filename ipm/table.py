@@ -62,18 +62,23 @@ def row_id(entry: dict) -> str:
             + (f"_mask{slug(entry['mask'])}" if entry.get("mask") else ""))
 
 
+def _match(row: str) -> re.Match | None:
+    """``row`` matched by the row-id grammar with its parts named, None if it is no method's row."""
+    return _ROW_PARTS.fullmatch(row) if re.fullmatch(ROW_ID, row) else None
+
+
 def row_parts(row: str) -> dict | None:
     """A method's row id (:func:`row_id`) taken apart: its ``name``, ``views``, ``tag`` and ``mask``
     (the degradation's slug; None where the row has none); None for a row of no method (a
     reference line's)."""
-    m = re.fullmatch(ROW_ID, row) and _ROW_PARTS.fullmatch(row)
+    m = _match(row)
     return {**m.groupdict(), "views": int(m["views"])} if m else None
 
 
 def untagged(row: str) -> str | None:
     """The row id of ``row``'s twin without its tag (the same method, views and masks), or None
     where ``row`` is no method's or has no tag."""
-    m = re.fullmatch(ROW_ID, row) and _ROW_PARTS.fullmatch(row)
+    m = _match(row)
     return row[:m.start("tag") - 1] + row[m.end("tag"):] if m and m["tag"] else None
 
 

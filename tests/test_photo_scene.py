@@ -250,28 +250,38 @@ def test_the_shipped_segmenter_is_the_default_budgets_seed_0():
     assert record["res"] == SEG_RES and tuple(record["widths"]) == WIDTHS
 
 
+def _glass_on_grey(seed, stem, foot, colour, shadow=None):
+    """A noisy grey photo (the masks' shape) of a glass in ``colour``: a bowl at the top, ``stem``
+    and ``foot``, a darkened ``shadow``; GrabCut labels that fix the bowl as object and the rest as
+    ground (the network leaving out parts it never saw), GrabCut's mask from them, and the bowl."""
+    import cv2
+
+    from ipm.segment import _grab_cut
+
+    rng = np.random.default_rng(seed)
+    img = np.clip(150 + rng.normal(0, 6, (*stem.shape, 3)), 0, 255)
+    y, x = np.mgrid[:stem.shape[0], :stem.shape[1]]
+    bowl = (np.hypot((x - 48) / 22, (y - 30) / 14) < 1) & (y >= 30) | ((y >= 18) & (y < 30) & (abs(x - 48) < 22))
+    if shadow is not None:
+        img[shadow] *= 0.45
+    for part in (bowl, stem, foot):
+        img[part] = np.asarray(colour) + rng.normal(0, 6, (part.sum(), 3))
+    img8 = img.astype(np.uint8)
+    labels = np.where(bowl, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
+    return img8, labels, _grab_cut(img8, labels) > 0.5, bowl
+
+
 def test_the_objects_colours_take_back_a_foot_the_network_left_on_the_ground():
     """``ipm.segment._released``: a purple bowl whose stem and foot the labels fix as ground (as
     the network does with parts it never saw) gets them back, and its grey shadow, darker than
     the floor but of its chroma, stays ground."""
-    import cv2
+    from ipm.segment import _released
 
-    from ipm.segment import _grab_cut, _released
-
-    rng = np.random.default_rng(0)
-    img = np.clip(150 + rng.normal(0, 6, (96, 96, 3)), 0, 255)
-    purple = np.array([120, 70, 190])
     y, x = np.mgrid[:96, :96]
-    bowl = (np.hypot((x - 48) / 22, (y - 30) / 14) < 1) & (y >= 30) | ((y >= 18) & (y < 30) & (abs(x - 48) < 22))
     stem = (y >= 43) & (y < 54) & (abs(x - 48) < 3)
     foot = (np.hypot((x - 48) / 14, (y - 56) / 4) < 1)
     shadow = (np.hypot((x - 70) / 16, (y - 58) / 5) < 1) & ~foot
-    img[shadow] *= 0.45
-    for part in (bowl, stem, foot):
-        img[part] = purple + rng.normal(0, 6, (part.sum(), 3))
-    img8 = img.astype(np.uint8)
-    labels = np.where(bowl, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
-    mask = _grab_cut(img8, labels) > 0.5
+    img8, labels, mask, bowl = _glass_on_grey(0, stem, foot, (120, 70, 190), shadow)
     assert not (mask & foot).any()
     grown = _released(img8, labels, mask.astype(np.float32)) > 0.5
     truth = bowl | stem | foot
@@ -283,22 +293,12 @@ def test_a_foot_beyond_the_release_reach_does_not_colour_the_ground():
     """``ipm.segment._released``: a glass's foot at the end of a long stem, farther from the
     bowl's mask than the release reaches, is joined to it through the stem, so its colour stays
     out of the ground's and the second pass takes it back (``_joined``)."""
-    import cv2
+    from ipm.segment import _joined, _released
 
-    from ipm.segment import _grab_cut, _joined, _released
-
-    rng = np.random.default_rng(1)
-    img = np.clip(150 + rng.normal(0, 6, (120, 96, 3)), 0, 255)
-    yellow = np.array([200, 180, 60])
     y, x = np.mgrid[:120, :96]
-    bowl = (np.hypot((x - 48) / 22, (y - 30) / 14) < 1) & (y >= 30) | ((y >= 18) & (y < 30) & (abs(x - 48) < 22))
     stem = (y >= 43) & (y < 74) & (abs(x - 48) < 3)
     foot = np.hypot((x - 48) / 16, (y - 76) / 4) < 1
-    for part in (bowl, stem, foot):
-        img[part] = yellow + rng.normal(0, 6, (part.sum(), 3))
-    img8 = img.astype(np.uint8)
-    labels = np.where(bowl, cv2.GC_FGD, cv2.GC_BGD).astype(np.uint8)
-    mask = _grab_cut(img8, labels) > 0.5
+    img8, labels, mask, bowl = _glass_on_grey(1, stem, foot, (200, 180, 60))
     assert not (mask & foot).any()
     joined = _joined(mask, stem | foot | bowl)
     assert joined[foot].all() and not joined[mask].any() and not joined[~(stem | foot | bowl)].any()
