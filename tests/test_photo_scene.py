@@ -157,6 +157,21 @@ def test_training_photos_show_the_object_where_its_mask_is(mitsuba_cpu, tmp_path
         load_photos(tmp_path / "bad.npz")
 
 
+def test_stemmed_vessels_stand_on_a_foot_below_a_bowl():
+    """The segmenter's photos of vessels on a stem: dishes parameters in the generator's bounds, no
+    handle, a profile whose stem is narrower than half its foot and half its rim; a seeded draw."""
+    from ipm.generators import get_generator
+    from ipm.learned.segmenter_training import stemmed_vessel
+
+    gen = get_generator("dishes")
+    for seed in range(20):
+        x = stemmed_vessel(gen, np.random.default_rng(seed))
+        assert np.array_equal(x, gen.spec.clip(x)) and x[gen.spec.index["has_handle"]] == 0
+        stem = x[1:3].max()
+        assert stem < 0.5 * x[0] and stem < 0.5 * x[8]
+    assert np.array_equal(stemmed_vessel(gen, np.random.default_rng(3)), stemmed_vessel(gen, np.random.default_rng(3)))
+
+
 @pytest.mark.slow
 def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu, monkeypatch):
     """A few steps on four photos lower the loss; the weights written and read back (a narrower
@@ -186,6 +201,9 @@ def test_the_segmenter_learns_and_round_trips(tmp_path, mitsuba_cpu, monkeypatch
     again, again_meta = fit(settings.updated(steps=1), 0, data=data, init=read(tmp_path / "seg.json"))
     assert again_meta["final_loss"] < first and again_meta["init"]["final_loss"] == meta["final_loss"]
     assert again_meta["widths"] == [8, 16, 16] and again_meta["photos"] == [[0, 4]]
+    stem = make_photos(2, seed=1, spp=4, stemmed=True)  # a share of every batch from vessels on a stem
+    mixed = fit(settings.updated(steps=2), 0, data=data, stemmed=stem, stemmed_share=0.5)[1]
+    assert mixed["stemmed_photos"] == [[0, 2]] and mixed["stemmed_share"] == 0.5 and np.isfinite(mixed["final_loss"])
     with pytest.raises(UserError, match="reads 64 px photos"):
         fit(settings, 0, data=data, init=(again.__class__(jax.random.PRNGKey(0), (8, 16, 16), 64), {}))
     (tmp_path / "bad.json").write_text('{"format": "ipm-learned-regressor/1"}')

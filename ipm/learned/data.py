@@ -64,15 +64,17 @@ def sample_lod(gen) -> int:
     return max(1, gen.min_fit_lod)
 
 
-def draw_sample(gen, rng: np.random.Generator, res: int = RENDER_RES, elevations=ELEVATIONS) -> Sample:
-    """A random object of ``gen``'s family (``Generator.sample``) at a random pose (as the test cases:
-    any yaw, offsets up to 0.1, scale 0.85-1.15) seen from a random orbit camera (any azimuth,
-    elevation in ``elevations`` (degrees), lens the benchmark's or a photo's), framed as the cases are."""
+def draw_sample(gen, rng: np.random.Generator, res: int = RENDER_RES, elevations=ELEVATIONS,
+                x: np.ndarray | None = None) -> Sample:
+    """A random object of ``gen``'s family (``Generator.sample``; ``x``: these parameters instead) at a
+    random pose (as the test cases: any yaw, offsets up to 0.1, scale 0.85-1.15) seen from a random
+    orbit camera (any azimuth, elevation in ``elevations`` (degrees), lens the benchmark's or a
+    photo's), framed as the cases are."""
     from ipm.cases import FOV_RANGE
     from ipm.pose import yaw_matrix
     from ipm.synth import FOV_X, view_cameras
 
-    x = gen.sample(rng)
+    x = gen.sample(rng) if x is None else x
     yaw = float(rng.uniform(0.0, 2 * np.pi))
     translation = np.array([rng.uniform(-0.1, 0.1), 0.0, rng.uniform(-0.1, 0.1)])
     scale = float(rng.uniform(0.85, 1.15))

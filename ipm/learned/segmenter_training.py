@@ -32,6 +32,8 @@ SEGMENTER_SEED_BASE = 20_000_000
 GENERATORS = ("dishes", "buildings", "buildings")
 """The generators whose objects the training photos show, in turn: a dish for every two buildings
 (docs/decisions.md, "Segmenting a photograph")."""
+STEMMED_SEED_BASE = 21_000_000
+"""Photos of vessels on a stem (:func:`stemmed_vessel`) draw from seeds ``STEMMED_SEED_BASE + seed``."""
 
 
 @dataclass(frozen=True)
@@ -50,17 +52,44 @@ class SegmenterSettings(Settings):
 
 PROFILES = {"smoke": SegmenterSettings(samples=8, held_out=4, steps=4, batch=4, spp=4),
             "default": SegmenterSettings()}
+STEMMED_SHARE = 0.25
+"""The share of each batch drawn from photos of vessels on a stem, where a training is given them."""
 
 
-def photo_sample(gen, rng: np.random.Generator, res: int = SEG_RES, spp: int = 16) -> tuple[bytes, np.ndarray]:
+def stemmed_vessel(gen, rng: np.random.Generator) -> np.ndarray:
+    """Parameters of a dishes vessel on a foot and a stem, without a handle (a wine or cocktail glass,
+    an egg cup, a sundae dish): the profile's lowest point a foot (radius 0.15-0.4), the next two to
+    four a stem (0.02-0.07), the rest a bowl from 0.06-0.25 to a rim of 0.2-0.7 by a power curve
+    with a bulge or waist, height 0.6-1.25. The dishes sampler (the test split's) draws no stem, so
+    photos of its draws never show the ground between a bowl and its foot."""
+    from ipm.generators.dishes import N_PROFILE
+
+    spec = gen.spec
+    x = spec.default.copy()
+    stem = int(rng.integers(2, 5))  # profile points 1..stem
+    x[0] = rng.uniform(1.5, 4.0)
+    x[1:stem + 1] = rng.uniform(0.2, 0.7) * rng.uniform(0.85, 1.15, stem)
+    t = np.linspace(0.0, 1.0, N_PROFILE - stem - 1)
+    r0, r1 = rng.uniform(0.6, 2.5), rng.uniform(2.0, 7.0)
+    gamma = float(np.exp(rng.uniform(np.log(0.3), np.log(2.0))))
+    x[stem + 1:N_PROFILE] = np.clip(r0 + (r1 - r0) * t**gamma + rng.uniform(-0.5, 1.5) * np.sin(np.pi * t), 0.3, 8.0)
+    x[spec.index["y_scale"]] = rng.uniform(0.6, 1.25)
+    x[spec.index["has_handle"]] = 0.0
+    return spec.clip(x)
+
+
+def photo_sample(gen, rng: np.random.Generator, res: int = SEG_RES, spp: int = 16,
+                 stemmed: bool = False) -> tuple[bytes, np.ndarray]:
     """One training photo as a JPEG file's bytes (res x res) and its object mask (res, res) bool.
-    The object wears, in equal shares, a plain colour, a seeded noise texture, or the materials the
-    references' views wear (``ipm.render.appearance``: glazes and prints; brick, render and tiles)."""
+    The object (``stemmed``: a dishes vessel on a stem, :func:`stemmed_vessel`) wears, in equal
+    shares, a plain colour, a seeded noise texture, or the materials the references' views wear
+    (``ipm.render.appearance``: glazes and prints; brick, render and tiles)."""
     from ipm.io.views import jpeg_bytes, srgb_bytes
     from ipm.learned.data import PHOTO_ELEVATIONS, draw_sample, sample_lod
     from ipm.render.photo_scene import render_photo
 
-    sample = draw_sample(gen, rng, res=res, elevations=PHOTO_ELEVATIONS)
+    x = stemmed_vessel(gen, rng) if stemmed else None
+    sample = draw_sample(gen, rng, res=res, elevations=PHOTO_ELEVATIONS, x=x)
     mesh = gen.mesh(sample.x, sample_lod(gen))
     dress = rng.random()
     texture, plain, labels = None, None, None
@@ -88,20 +117,22 @@ def _materials(gen, mesh, seed: int) -> dict:
     return reference_textures("building", mesh.vertices, mesh.faces, mesh.labels, mesh.uv, seed, parts, size=128)
 
 
-def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False, start: int = 0) -> dict:
+def make_photos(n: int, seed: int, spp: int = 16, progress: bool = False, start: int = 0,
+                stemmed: bool = False) -> dict:
     """Training photos ``start`` to ``start + n`` of ``seed``'s sequence, alternating over
-    :data:`GENERATORS`: ``jpeg`` (their files' bytes, a list), ``mask`` (n, R, R) bool and
-    ``ranges`` (``[[start, start + n]]``). Each photo draws from its own spawned seed, so ranges made
-    apart join into the same set."""
+    :data:`GENERATORS` (``stemmed``: of the stemmed vessels' own sequence, :func:`stemmed_vessel`):
+    ``jpeg`` (their files' bytes, a list), ``mask`` (n, R, R) bool and ``ranges`` (``[[start, start +
+    n]]``). Each photo draws from its own spawned seed, so ranges made apart join into the same set."""
     from tqdm import tqdm
 
     from ipm.generators import get_generator
 
-    gens = [get_generator(g) for g in GENERATORS]
+    gens = [get_generator(g) for g in (("dishes",) if stemmed else GENERATORS)]
     files, masks = [], []
-    seeds = np.random.SeedSequence(SEGMENTER_SEED_BASE + seed).spawn(start + n)[start:]
+    base = STEMMED_SEED_BASE if stemmed else SEGMENTER_SEED_BASE
+    seeds = np.random.SeedSequence(base + seed).spawn(start + n)[start:]
     for i, ss in enumerate(tqdm(seeds, desc="segmenter photos", disable=not progress, leave=False), start):
-        data, mask = photo_sample(gens[i % len(gens)], np.random.default_rng(ss), SEG_RES, spp)
+        data, mask = photo_sample(gens[i % len(gens)], np.random.default_rng(ss), SEG_RES, spp, stemmed)
         files.append(data)
         masks.append(mask)
     return {"jpeg": files, "mask": np.stack(masks), "ranges": [[start, start + n]]}
@@ -160,12 +191,14 @@ def _augmented(images, masks, key, batch: int):
 
 
 def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None,
-        init: tuple | None = None):
+        init: tuple | None = None, stemmed: dict | None = None, stemmed_share: float = STEMMED_SHARE):
     """Train the segmenter: the model and its metadata (held-out mask IoU, seconds). The photos
     (rendered here unless ``data`` gives them, as :func:`make_photos` returns them) stay on JAX's
     device; each step draws its batch there, augmented (:func:`_augmented`). The loss: binary
     cross-entropy plus one minus each photo's soft IoU. ``init`` (a model and its metadata, as
-    ``ipm.learned.segmenter.read`` returns them) starts from a trained network instead of ``seed``'s."""
+    ``ipm.learned.segmenter.read`` returns them) starts from a trained network instead of ``seed``'s.
+    ``stemmed``: photos of vessels on a stem (``make_photos(stemmed=True)``), ``stemmed_share`` of
+    every batch, the main set's share of them held out."""
     import optax
     from tqdm import tqdm
 
@@ -183,6 +216,11 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
     opt = optax.adam(optax.cosine_decay_schedule(settings.learning_rate, settings.steps))
     state = opt.init(eqx.filter(model, eqx.is_array))
     train_x, train_y = jnp.asarray(images[:n]), jnp.asarray(data["mask"][:n])
+    n_stem = 0 if stemmed is None else round(settings.batch * stemmed_share)
+    if n_stem:
+        stem_images = decoded(stemmed)
+        stem_n = len(stem_images) - round(len(stem_images) * settings.held_out / (n + settings.held_out))
+        stem_x, stem_y = jnp.asarray(stem_images[:stem_n]), jnp.asarray(stemmed["mask"][:stem_n])
 
     def loss_fn(model, x, y):
         logits = jax.vmap(model)(x)
@@ -191,8 +229,11 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
         return jnp.mean(optax.sigmoid_binary_cross_entropy(logits, y)) + jnp.mean(1.0 - soft_iou)
 
     @eqx.filter_jit
-    def step(model, state, xs, ys, key):
-        x, y = _augmented(xs, ys, key, settings.batch)
+    def step(model, state, xs, ys, key, extra=None):
+        x, y = _augmented(xs, ys, key, settings.batch - n_stem)
+        if n_stem:
+            x2, y2 = _augmented(*extra, jax.random.fold_in(key, 1), n_stem)
+            x, y = jnp.concatenate([x, x2]), jnp.concatenate([y, y2])
         loss, grads = eqx.filter_value_and_grad(loss_fn)(model, x, y)
         updates, state = opt.update(grads, state, model)
         return eqx.apply_updates(model, updates), state, loss
@@ -201,14 +242,17 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
     losses = []
     bar = tqdm(range(settings.steps), desc="train segmenter", disable=not progress, leave=False)
     for i in bar:
-        model, state, loss = step(model, state, train_x, train_y, jax.random.fold_in(key, i))
+        model, state, loss = step(model, state, train_x, train_y, jax.random.fold_in(key, i),
+                                  (stem_x, stem_y) if n_stem else None)
         losses.append(loss)
         if (i + 1) % 100 == 0:
             bar.set_postfix(loss=f"{float(np.mean(losses[-100:])):.4f}")
     losses = [float(v) for v in losses[-50:]]
-    held = None
+    held = stem_held = None
     if settings.held_out:  # each held-out photo's mask IoU (1 where both are empty)
         held = view_ious(probabilities(model, images[n:]) > 0.5, data["mask"][n:] > 0.5)
+        if n_stem and stem_n < len(stem_images):
+            stem_held = view_ious(probabilities(model, stem_images[stem_n:]) > 0.5, stemmed["mask"][stem_n:] > 0.5)
     meta = {"seed": seed, "settings": asdict(settings), "res": model.res,
             "widths": [a.out_channels for a, _ in model.down], "generators": list(GENERATORS),
             "photos": data.get("ranges", []), "final_loss": float(np.mean(losses)), "device": jax.default_backend(),
@@ -216,18 +260,23 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
             "render_seconds": round(render_s, 1), "train_seconds": round(time.perf_counter() - t0 - render_s, 1)}
     if init is not None:
         meta["init"] = init[1]
+    if n_stem:
+        meta["stemmed_photos"], meta["stemmed_share"] = stemmed.get("ranges", []), stemmed_share
+        if stem_held is not None:
+            meta["stemmed_held_out_mask_iou"] = {"mean": float(stem_held.mean()), "worst": float(stem_held.min())}
     return model, meta
 
 
 def prepare(out, profile: str = "default", seed: int = 0, progress: bool = False, data: dict | None = None,
-            init: tuple | None = None) -> dict:
+            init: tuple | None = None, stemmed: dict | None = None) -> dict:
     """Train the segmenter with ``profile``'s budget from ``seed`` (on ``data``'s photos where
-    given; from ``init``'s network where given) and write it to ``out``."""
+    given; from ``init``'s network where given; with ``stemmed``'s photos of vessels on a stem where
+    given) and write it to ``out``."""
     from ipm.learned.network import save
 
     if profile not in PROFILES:
         raise UserError(f"unknown profile {profile!r} (known: {', '.join(PROFILES)})")
-    model, meta = fit(PROFILES[profile], seed, progress, data, init)
+    model, meta = fit(PROFILES[profile], seed, progress, data, init, stemmed)
     save(model, out, meta, FORMAT)
     return meta
 
@@ -252,22 +301,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--render-photos", default=None, metavar="FILE", help="only render photos to FILE")
     ap.add_argument("--start", type=int, default=0, help="with --render-photos: the first photo's index")
     ap.add_argument("--count", type=int, default=None, help="with --render-photos: how many (default: all)")
+    ap.add_argument("--stemmed", action="store_true", help="with --render-photos: vessels on a stem, from their "
+                    "own sequence (stemmed_vessel)")
     ap.add_argument("--init", default=None, metavar="WEIGHTS", help="train on from this segmenter's weights "
                     "(a second stage on further photos) instead of new ones")
+    ap.add_argument("--stemmed-photos", nargs="+", default=None, metavar="FILE", help="photos of vessels on a "
+                    "stem (--render-photos --stemmed), a share of every batch")
     args = ap.parse_args(argv)
     configure_threads(args.threads, args.device)
     settings = PROFILES["default"]
     if args.render_photos:
         set_mitsuba_variant("cpu", args.threads)
         count = settings.samples + settings.held_out - args.start if args.count is None else args.count
-        save_photos(args.render_photos, make_photos(count, 0, settings.spp, True, args.start))
+        save_photos(args.render_photos, make_photos(count, 0, settings.spp, True, args.start, args.stemmed))
         return
     if args.photos is None:
         set_mitsuba_variant("cpu", args.threads)
     init = read(args.init) if args.init else None
     meta = prepare(args.out or shipped_path(), seed=args.seed, progress=True, init=init,
                    data=load_photos(*args.photos) if args.photos else make_photos(
-                       settings.samples + settings.held_out, 0, settings.spp, True))
+                       settings.samples + settings.held_out, 0, settings.spp, True),
+                   stemmed=load_photos(*args.stemmed_photos) if args.stemmed_photos else None)
     print({k: meta[k] for k in ("held_out_mask_iou", "render_seconds", "train_seconds")})
 
 
