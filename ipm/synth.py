@@ -22,7 +22,7 @@ from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, save_ply, write_json
 from ipm.io.views import save_mask, save_rgb, write_views
-from datasets_synthetic import city_recipes, more_recipes, tree_recipes  # noqa: F401  (register their recipes in RECIPES)
+from datasets_synthetic import city_recipes, mesh_files, more_recipes, tree_recipes  # noqa: F401  (register their recipes in RECIPES)
 from datasets_synthetic.recipes import RECIPES
 from ipm.render.cameras import is_fov_deg, orbit_camera
 from ipm.uv import corners_from_vertices
@@ -93,6 +93,9 @@ def ground_truth_mesh(case: dict, lod: int | None = None):
         m = gen.mesh(x, gen.reference_lod if lod is None else lod)
         v, f, labels, uv = m.vertices, m.faces, m.labels, m.uv
     else:
+        if src.get("recipe") == "mesh_file" and case.get("generator") == "trees":
+            raise UserError(f"case {case.get('name')!r}: a tree cannot come from a mesh file (the GA reads "
+                            "branch and foliage from the references' part colours)")
         v, f, labels, uv = RECIPES[src["recipe"]](**src.get("args", {}))
         uv = corners_from_vertices(f, uv)  # recipes give one UV a vertex
     pose = case.get("pose", {})
@@ -220,10 +223,12 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
 def reference_appearance(case: dict, v, f, labels, uv) -> dict:
     """The textures a cup's or a building's reference views wear, one per part label
     (``ipm.render.appearance``; a building's parts by their material, a recipe's by its semantic
-    class), chosen by the case's ``texture_seed``."""
+    class, a building's without classes (a mesh file's) walls), chosen by the case's ``texture_seed``."""
     from ipm.render.appearance import BUILDING_PARTS, reference_textures
 
     seed, scheme = case.get("texture_seed", 0), semantic_scheme(case)
+    if scheme is None and case.get("generator") == "buildings":
+        return reference_textures("building", v, f, labels, uv, seed, {int(k): "wall" for k in np.unique(labels)})
     if scheme is None:
         return reference_textures("cup", v, f, labels, uv, seed)
     names, part_label = scheme

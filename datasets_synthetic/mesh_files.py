@@ -1,0 +1,72 @@
+"""A case's ground truth from a mesh file made by any tool: glTF or GLB, OBJ, PLY, STL, OFF (what
+trimesh reads), registered as the recipe ``mesh_file``, so a model made outside this project is a
+benchmark case like the recipes' (its case file: ``"source": {"recipe": "mesh_file", "args":
+{"path": "meshes/NAME.glb", "up": "z", "height": 0.9}}``; cups and buildings).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from datasets_synthetic.recipes import RECIPES, _cylindrical_uv
+from ipm.errors import UserError
+
+CASES_DIR = Path(__file__).resolve().parent
+"""Relative paths are read from here (``datasets_synthetic/``)."""
+UP_AXES = ("y", "z")
+
+
+def _parts(path: Path) -> list[trimesh.Trimesh]:
+    """The file's triangle meshes in its own frame (a scene's geometries placed by their nodes, in
+    the file's order); ``UserError`` for a file that is missing, unreadable or holds no triangles."""
+    if not path.is_file():
+        raise UserError(f"mesh file not found: {path}")
+    try:
+        loaded = trimesh.load(path, process=False)
+    except Exception as exc:  # trimesh raises many kinds for a file it cannot parse
+        raise UserError(f"unreadable mesh file {path}: {exc}") from None
+    parts = loaded.dump(concatenate=False) if isinstance(loaded, trimesh.Scene) else [loaded]
+    parts = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
+    if not parts:
+        raise UserError(f"mesh file {path} holds no triangles")
+    return parts
+
+
+@RECIPES.register("mesh_file")
+def mesh_file(path: str, up: str = "y", height: float | None = None):
+    """The mesh in ``path`` (relative to ``datasets_synthetic/``, or absolute) as a recipe gives
+    it: y up (``up`` "z": a z-up file, as many tools write OBJ and STL, turned to y up), standing on
+    y = 0 and centred on the y axis (its bounding box's middle), scaled to ``height`` units where
+    given (else the file's units); one part label per geometry of a scene, in the file's order;
+    each part's faces wound outwards where it is closed; the file's UVs where every vertex has one,
+    else the angle about +y and the height. The volumetric metrics assume closed parts."""
+    if up not in UP_AXES:
+        raise UserError(f"mesh_file: up must be one of {', '.join(UP_AXES)}, got {up!r}")
+    if height is not None and not (np.isfinite(height) and height > 0):
+        raise UserError(f"mesh_file: height must be a positive number, got {height!r}")
+    parts = _parts(Path(path) if Path(path).is_absolute() else CASES_DIR / path)
+    for p in parts:
+        if p.is_watertight:
+            trimesh.repair.fix_normals(p)  # outward winding: Mitsuba's area emitters are one-sided
+    uv = [getattr(p.visual, "uv", None) for p in parts]
+    vertices = np.concatenate([np.asarray(p.vertices, np.float64) for p in parts])
+    if not np.isfinite(vertices).all():
+        raise UserError(f"mesh file {path} has vertices that are NaN or infinite")
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts])[:-1]
+    faces = np.concatenate([np.asarray(p.faces) + o for p, o in zip(parts, offsets)])
+    labels = np.concatenate([np.full(len(p.faces), k) for k, p in enumerate(parts)])
+    if up == "z":
+        vertices = vertices[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])  # (x, y, z) -> (x, z, -y)
+    lo, hi = vertices.min(0), vertices.max(0)
+    if hi[1] - lo[1] <= 0:
+        raise UserError(f"mesh file {path} is flat along its up axis ({up})")
+    vertices = vertices - np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    if height is not None:
+        vertices *= height / (hi[1] - lo[1])
+    if all(u is not None and len(u) == len(p.vertices) for u, p in zip(uv, parts)):
+        uv = np.concatenate([np.asarray(u, np.float64) for u in uv])
+    else:
+        uv = _cylindrical_uv(vertices)
+    return vertices, faces, labels, uv

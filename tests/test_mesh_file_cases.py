@@ -1,0 +1,91 @@
+"""A benchmark case from a mesh file made by any tool (the recipe ``mesh_file``)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from ipm.errors import UserError
+
+
+def _z_up_mug(path):
+    """A closed z-up mug-like solid (a body and a handle, wound inwards on purpose) written to ``path``."""
+    body = trimesh.creation.cylinder(0.4, 1.2, sections=32)  # along z, from z = -0.6 to 0.6
+    handle = trimesh.creation.box((0.15, 0.1, 0.5), trimesh.transformations.translation_matrix([0.5, 0, 0.1]))
+    handle.invert()
+    scene = trimesh.Scene()
+    scene.add_geometry(body, geom_name="body")
+    scene.add_geometry(handle, geom_name="handle")
+    scene.export(path)
+    return path
+
+
+def test_a_mesh_file_stands_upright_on_the_ground_at_its_height(tmp_path):
+    """A z-up GLB of two geometries: y up, on y = 0, centred on the y axis, scaled to the height
+    asked for; one label per geometry; every part wound outwards (positive volume); UVs a vertex."""
+    from datasets_synthetic.mesh_files import mesh_file
+
+    v, f, labels, uv = mesh_file(str(_z_up_mug(tmp_path / "mug.glb")), up="z", height=0.9)
+    assert v[:, 1].min() == pytest.approx(0.0, abs=1e-9) and np.ptp(v[:, 1]) == pytest.approx(0.9)
+    lo, hi = v.min(0), v.max(0)
+    assert (lo[0] + hi[0]) / 2 == pytest.approx(0.0, abs=1e-9) and (lo[2] + hi[2]) / 2 == pytest.approx(0.0, abs=1e-9)
+    assert np.ptp(v[:, 0]) > np.ptp(v[:, 2])  # the handle sticks out along x, as in the file
+    assert sorted(np.unique(labels)) == [0, 1] and len(labels) == len(f) and uv.shape == (len(v), 2)
+    for k in (0, 1):
+        part = trimesh.Trimesh(v, f[labels == k], process=True)
+        assert part.is_watertight and part.volume > 0
+    same = mesh_file(str(tmp_path / "mug.glb"), up="z")  # the file's own units
+    assert np.ptp(same[0][:, 1]) == pytest.approx(1.2)
+
+
+def test_a_mesh_file_case_wears_its_class_materials(tmp_path):
+    """A case of the buildings class from a mesh file: the world frame by its pose; the reference
+    views' materials a building's (no part classes: walls) where a cup's would be a glaze; a tree
+    from a mesh file is refused (the GA reads branch and foliage from the references' colours)."""
+    from ipm.synth import ground_truth_mesh, reference_appearance, semantic_scheme
+
+    path = str(_z_up_mug(tmp_path / "block.glb"))
+    case = {"name": "building_file", "generator": "buildings", "pose": {"yaw_deg": 90.0, "scale": 2.0},
+            "source": {"recipe": "mesh_file", "args": {"path": path, "up": "z", "height": 0.5}}}
+    v, f, labels, uv = ground_truth_mesh(case)
+    assert np.ptp(v[:, 1]) == pytest.approx(1.0) and np.ptp(v[:, 2]) > np.ptp(v[:, 0])  # scaled, turned
+    assert semantic_scheme(case) is None  # no semantic images: no window term from them
+    walls = reference_appearance(case, v, f, labels, uv)
+    cup = reference_appearance({**case, "generator": "dishes"}, v, f, labels, uv)
+    assert set(walls) == set(cup) == {0, 1} and not np.allclose(walls[0], cup[0])
+    with pytest.raises(UserError, match="tree"):
+        ground_truth_mesh({**case, "generator": "trees"})
+
+
+@pytest.mark.parametrize("args, message", [
+    ({"path": "no/such.glb"}, "mesh file not found"),
+    ({"path": "NOTMESH"}, "unreadable mesh file|holds no triangles"),
+    ({"path": "MUG", "up": "x"}, "up must be one of y, z"),
+    ({"path": "MUG", "height": -1.0}, "height must be a positive number"),
+    ({"path": "MUG", "height": float("nan")}, "height must be a positive number"),
+])
+def test_a_bad_mesh_file_is_one_clear_error(tmp_path, args, message):
+    from datasets_synthetic.mesh_files import mesh_file
+
+    (tmp_path / "not_a_mesh.obj").write_text("this is not a mesh\n")
+    mug = str(_z_up_mug(tmp_path / "mug.glb"))
+    args = {**args, "path": {"NOTMESH": str(tmp_path / "not_a_mesh.obj"), "MUG": mug}.get(args["path"], args["path"])}
+    with pytest.raises(UserError, match=message):
+        mesh_file(**args)
+
+
+def test_a_mesh_file_case_is_synthesized_like_the_recipes(tmp_path, monkeypatch, mitsuba_cpu):
+    """synth renders a cup case from a mesh file: its true mesh written, the input view's mask
+    where the mesh is, colours and the transforms a fit reads."""
+    import ipm.synth as synth
+    from ipm.io.views import load_views
+
+    case = {"name": "cup_file", "split": "dev", "generator": "dishes", "camera": {"elevation_deg": 20.0},
+            "source": {"recipe": "mesh_file", "args": {"path": str(_z_up_mug(tmp_path / "mug.glb")), "up": "z",
+                                                       "height": 0.8}}}
+    monkeypatch.setattr(synth, "load_case", lambda name: case)
+    synth.synthesize("cup_file", tmp_path / "views", n_views=2, res=48, spp=4, progress=False)
+    views = load_views(tmp_path / "views" / "transforms.json")
+    assert (tmp_path / "views" / "reference.ply").is_file() and len(views.masks) == 2
+    assert all(0.02 < m.mean() < 0.8 for m in views.masks)
+    assert trimesh.load(tmp_path / "views" / "reference.ply").bounds[1, 1] == pytest.approx(0.8, abs=1e-6)
