@@ -25,7 +25,13 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("synth", help="render a synthetic reference case")
-    s.add_argument("--case", required=True, help="case name (datasets_synthetic/NAME.json)")
+    s.add_argument("--case", default=None, help="case name (datasets_synthetic/NAME.json)")
+    s.add_argument("--mesh", default=None, help="instead of --case: a mesh file (glTF / GLB, OBJ, PLY, STL, OFF) "
+                   "rendered as a case of --generator (dishes or buildings), standing on the ground")
+    s.add_argument("--generator", default=None, help="with --mesh: the generator of the object's class")
+    s.add_argument("--up", choices=("y", "z"), default="y", help="with --mesh: the file's up axis")
+    s.add_argument("--height", type=float, default=None, help="with --mesh: the object's height in scene units "
+                   "(default: the file's units)")
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--views", type=int, default=1, help="number of views (view 0 is the input view)")
     s.add_argument("--res", type=int, default=256, help="image width and height in pixels")
@@ -148,10 +154,17 @@ def _run(args) -> int:
     configure_threads(args.threads, args.device, quick_compile=quick)
     if args.command == "synth":
         from ipm.runtime import set_mitsuba_variant
-        from ipm.synth import synthesize
+        from ipm.synth import mesh_case, synthesize
 
+        if (args.case is None) == (args.mesh is None):
+            raise UserError("give one of --case and --mesh")
+        if args.mesh is not None and args.generator is None:
+            raise UserError("--mesh needs --generator (dishes or buildings)")
+        if args.mesh is None and args.generator is not None:
+            raise UserError("--generator applies to --mesh only (a case names its own)")
+        case = args.case if args.mesh is None else mesh_case(args.mesh, args.generator, args.up, args.height)
         set_mitsuba_variant(args.device, args.threads)
-        synthesize(args.case, args.out, n_views=args.views, res=args.res, spp=args.spp, progress=not args.quiet,
+        synthesize(case, args.out, n_views=args.views, res=args.res, spp=args.spp, progress=not args.quiet,
                    layout=args.layout)
     elif args.command == "reconstruct":
         from ipm.methods import METHODS, check_generator

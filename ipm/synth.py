@@ -173,9 +173,19 @@ def case_cameras(spec: dict, vertices: np.ndarray, n_views: int, layout: str) ->
                         cam.get("elevation_deg", 22.0), layout, fov), fov
 
 
-def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp: int = 64,
+def mesh_case(path: str | Path, generator: str, up: str = "y", height: float | None = None) -> dict:
+    """A case of no split for the mesh file at ``path`` (``ipm synth --mesh``; the recipe
+    ``mesh_file``) as an object of ``generator``'s class, seen from the cases' default camera."""
+    get_generator(generator)  # an unknown name is one clear error
+    return {"name": Path(path).stem, "split": "none", "generator": generator,
+            "description": f"the mesh file {Path(path).name}",
+            "source": {"recipe": "mesh_file", "args": {"path": str(Path(path).resolve()), "up": up, "height": height}}}
+
+
+def synthesize(case: str | dict, out: str | Path, n_views: int = 1, res: int = 256, spp: int = 64,
                progress: bool = True, layout: str = "hemi") -> None:
-    """Render the case's references into ``out`` (atomically: all or nothing)."""
+    """Render the case's references (a case name, or a case itself: :func:`mesh_case`) into ``out``
+    (atomically: all or nothing)."""
     from tqdm import tqdm
 
     from ipm.io.semantic import save_labels
@@ -185,7 +195,8 @@ def synthesize(case: str, out: str | Path, n_views: int = 1, res: int = 256, spp
 
     if n_views < 1 or res < 16:
         raise UserError("need at least 1 view and 16 px")
-    spec = load_case(case)
+    spec = load_case(case) if isinstance(case, str) else case
+    case = spec["name"]
     if layout == "photo" and is_tree_case(spec):
         raise UserError(f"{case}: the photo layout renders cups and buildings, not trees")
     v, f, labels, uv = ground_truth_mesh(spec)

@@ -89,3 +89,28 @@ def test_a_mesh_file_case_is_synthesized_like_the_recipes(tmp_path, monkeypatch,
     assert (tmp_path / "views" / "reference.ply").is_file() and len(views.masks) == 2
     assert all(0.02 < m.mean() < 0.8 for m in views.masks)
     assert trimesh.load(tmp_path / "views" / "reference.ply").bounds[1, 1] == pytest.approx(0.8, abs=1e-6)
+
+
+@pytest.mark.slow
+def test_ipm_synth_renders_a_mesh_file_without_a_case_file(tmp_path):
+    """``ipm synth --mesh FILE --generator G``: the references of a model as a case of that class;
+    one of --case and --mesh, --mesh with its generator, else one clear error and no output."""
+    import subprocess
+    import sys
+
+    def ipm(*argv):
+        return subprocess.run([sys.executable, "-m", "ipm.cli", "synth", *argv, "--res", "32", "--spp", "4",
+                               "--threads", "1", "--quiet"], capture_output=True, text=True)
+
+    mug = str(_z_up_mug(tmp_path / "mug.glb"))
+    out = tmp_path / "views"
+    done = ipm("--mesh", mug, "--generator", "dishes", "--up", "z", "--height", "0.8", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    assert trimesh.load(out / "reference.ply").bounds[1, 1] == pytest.approx(0.8, abs=1e-6)
+    assert (out / "masks").is_dir() and (out / "transforms.json").is_file()
+    for argv, message in ((["--mesh", mug], "--mesh needs --generator"), ([], "give one of --case and --mesh"),
+                          (["--case", "cup_1", "--generator", "dishes"], "--generator applies to --mesh only"),
+                          (["--mesh", mug, "--generator", "teapots"], "unknown generator")):
+        bad = ipm(*argv, "--out", str(tmp_path / "bad"))
+        assert bad.returncode == 2 and message in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "bad").exists()
