@@ -1,7 +1,8 @@
 """A case's ground truth from a mesh file made by any tool: glTF or GLB, OBJ, PLY, STL, OFF (what
 trimesh reads), registered as the recipe ``mesh_file``, so a model made outside this project is a
 benchmark case like the recipes' (its case file: ``"source": {"recipe": "mesh_file", "args":
-{"path": "meshes/NAME.glb", "up": "z", "height": 0.9}}``; cups and buildings).
+{"path": "meshes/NAME.glb", "up": "z", "height": 0.9}}``; cups and buildings). Where the file
+gives every part a base colour on its UVs, the references wear it (:func:`file_textures`).
 """
 from __future__ import annotations
 
@@ -70,3 +71,34 @@ def mesh_file(path: str, up: str = "y", height: float | None = None):
     else:
         uv = _cylindrical_uv(vertices)
     return vertices, faces, labels, uv
+
+
+def _base_colour(part: trimesh.Trimesh, size: int) -> np.ndarray | None:
+    """A part's base colour as a (size, size, 3) linear bitmap in glTF's rows (the first at v = 1,
+    as ``ipm.render.appearance.bake``'s): its texture (sRGB) times its factor (linear), or the factor
+    alone; None where the file gives the part neither or no UVs."""
+    from PIL import Image
+
+    from ipm.io.views import linear_from_srgb
+
+    material, uv = getattr(part.visual, "material", None), getattr(part.visual, "uv", None)
+    if material is None or uv is None or len(uv) != len(part.vertices):
+        return None
+    image = getattr(material, "baseColorTexture", None)
+    image = getattr(material, "image", None) if image is None else image
+    factor = getattr(material, "baseColorFactor", None)
+    factor = np.ones(3) if factor is None else np.asarray(factor, np.float64)[:3] / 255.0  # trimesh keeps it in bytes
+    if image is None:
+        return None if getattr(material, "baseColorFactor", None) is None else np.broadcast_to(factor, (size, size, 3)).copy()
+    rgb = np.asarray(image.convert("RGB").resize((size, size), Image.BILINEAR), np.float64) / 255.0
+    return linear_from_srgb(rgb) * factor
+
+
+def file_textures(path: str, up: str = "y", height: float | None = None, size: int | None = None) -> dict | None:
+    """The base colours of the mesh file at ``path`` (``mesh_file``'s arguments), one linear bitmap
+    per part label (``ipm.synth.reference_appearance``), or None unless every part has one."""
+    from ipm.render.appearance import TEXTURE_SIZE
+
+    parts = _parts(Path(path) if Path(path).is_absolute() else CASES_DIR / path)
+    colours = [_base_colour(p, size or TEXTURE_SIZE) for p in parts]
+    return None if any(c is None for c in colours) else dict(enumerate(colours))

@@ -234,9 +234,17 @@ def synthesize(case: str | dict, out: str | Path, n_views: int = 1, res: int = 2
 def reference_appearance(case: dict, v, f, labels, uv) -> dict:
     """The textures a cup's or a building's reference views wear, one per part label
     (``ipm.render.appearance``; a building's parts by their material, a recipe's by its semantic
-    class, a building's without classes (a mesh file's) walls), chosen by the case's ``texture_seed``."""
+    class, a building's without classes (a mesh file's) walls), chosen by the case's ``texture_seed``; a
+    mesh file's own base colours where it gives every part one."""
     from ipm.render.appearance import BUILDING_PARTS, reference_textures
 
+    src = case["source"]
+    if src.get("recipe") == "mesh_file":  # a model's own base colours, where its file gives them
+        from datasets_synthetic.mesh_files import file_textures
+
+        own = file_textures(**src.get("args", {}))
+        if own is not None:
+            return own
     seed, scheme = case.get("texture_seed", 0), semantic_scheme(case)
     if scheme is None and case.get("generator") == "buildings":
         return reference_textures("building", v, f, labels, uv, seed, {int(k): "wall" for k in np.unique(labels)})
@@ -244,7 +252,6 @@ def reference_appearance(case: dict, v, f, labels, uv) -> dict:
         return reference_textures("cup", v, f, labels, uv, seed)
     names, part_label = scheme
     by_label = {label: name for name, label in names.items()}
-    src = case["source"]
     parts = get_generator(src["generator"]).part_names if "generator" in src else ()
     materials = {int(k): BUILDING_PARTS[parts[k]] if k < len(parts) else by_label[int(part_label[k])]
                  for k in np.unique(labels)}

@@ -114,3 +114,37 @@ def test_ipm_synth_renders_a_mesh_file_without_a_case_file(tmp_path):
         bad = ipm(*argv, "--out", str(tmp_path / "bad"))
         assert bad.returncode == 2 and message in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
         assert not (tmp_path / "bad").exists()
+
+
+def test_a_textured_model_wears_its_own_base_colour(tmp_path, monkeypatch, mitsuba_cpu):
+    """A z-up GLB whose texture is red above and blue below (glTF's rows): the references wear it,
+    the object's upper pixels red and its lower ones blue; a file without textures wears its
+    class's materials."""
+    from PIL import Image
+
+    import ipm.synth as synth
+    from datasets_synthetic.mesh_files import file_textures
+    from ipm.io.views import load_views
+
+    m = trimesh.creation.cylinder(0.3, 1.0, sections=32)  # along z
+    uv = np.stack([(np.arctan2(m.vertices[:, 1], m.vertices[:, 0]) / (2 * np.pi)) % 1, m.vertices[:, 2] + 0.5], 1)
+    image = np.zeros((64, 64, 3), np.uint8)
+    image[:32], image[32:] = (220, 30, 30), (30, 30, 220)  # the first rows at v = 1: the top
+    m.visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(
+        baseColorTexture=Image.fromarray(image)))
+    m.export(tmp_path / "can.glb")
+    case = {"name": "cup_can", "split": "dev", "generator": "dishes", "camera": {"elevation_deg": 10.0},
+            "source": {"recipe": "mesh_file", "args": {"path": str(tmp_path / "can.glb"), "up": "z", "height": 1.0}}}
+    own = file_textures(**case["source"]["args"], size=32)
+    assert own[0].shape == (32, 32, 3) and own[0][2, 16, 0] > 0.5 > own[0][2, 16, 2] and own[0][29, 16, 2] > 0.5
+    assert file_textures(str(_z_up_mug(tmp_path / "mug.glb"))) is None  # no base colour: class materials
+    monkeypatch.setattr(synth, "load_case", lambda name: case)
+    synth.synthesize("cup_can", tmp_path / "views", n_views=1, res=48, spp=4, progress=False)
+    views = load_views(tmp_path / "views" / "transforms.json")
+    rgb = np.asarray(Image.open(tmp_path / "views" / "rgb" / sorted(p.name for p in (tmp_path / "views" / "rgb").iterdir())[0]),
+                     np.float64)[..., :3]
+    rows = np.nonzero(views.masks[0].any(1))[0]
+    top, bottom = rows[: len(rows) // 3], rows[-len(rows) // 3:]
+    upper = rgb[top][views.masks[0][top] > 0.5].mean(0)
+    lower = rgb[bottom][views.masks[0][bottom] > 0.5].mean(0)
+    assert upper[0] > upper[2] + 30 and lower[2] > lower[0] + 30
