@@ -195,8 +195,7 @@ def synthesize(case: str | dict, out: str | Path, n_views: int = 1, res: int = 2
 
     if n_views < 1 or res < 16:
         raise UserError("need at least 1 view and 16 px")
-    spec = load_case(case) if isinstance(case, str) else case
-    case = spec["name"]
+    spec, case = (load_case(case), case) if isinstance(case, str) else (case, case["name"])
     if layout == "photo" and is_tree_case(spec):
         raise UserError(f"{case}: the photo layout renders cups and buildings, not trees")
     v, f, labels, uv = ground_truth_mesh(spec)
