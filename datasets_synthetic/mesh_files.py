@@ -21,7 +21,8 @@ UP_AXES = ("y", "z")
 
 def _parts(path: Path) -> list[trimesh.Trimesh]:
     """The file's triangle meshes in its own frame (a scene's geometries placed by their nodes, in
-    the file's order); ``UserError`` for a file that is missing, unreadable or holds no triangles."""
+    the order trimesh lists them); ``UserError`` for a file that is missing, unreadable or holds no
+    triangles."""
     if not path.is_file():
         raise UserError(f"mesh file not found: {path}")
     try:
@@ -40,12 +41,12 @@ def mesh_file(path: str, up: str = "y", height: float | None = None):
     """The mesh in ``path`` (relative to ``datasets_synthetic/``, or absolute) as a recipe gives
     it: y up (``up`` "z": a z-up file, as many tools write OBJ and STL, turned to y up), standing on
     y = 0 and centred on the y axis (its bounding box's middle), scaled to ``height`` units where
-    given (else the file's units); one part label per geometry of a scene, in the file's order;
+    given (else the file's units); one part label per geometry of a scene (:func:`_parts`' order);
     each part's faces wound outwards where it is closed; the file's UVs where every vertex has one,
     else the angle about +y and the height. The volumetric metrics assume closed parts."""
     if up not in UP_AXES:
         raise UserError(f"mesh_file: up must be one of {', '.join(UP_AXES)}, got {up!r}")
-    if height is not None and not (np.isfinite(height) and height > 0):
+    if height is not None and not (isinstance(height, (int, float)) and np.isfinite(height) and height > 0):
         raise UserError(f"mesh_file: height must be a positive number, got {height!r}")
     parts = _parts(Path(path) if Path(path).is_absolute() else CASES_DIR / path)
     for p in parts:

@@ -63,6 +63,7 @@ def test_a_mesh_file_case_wears_its_class_materials(tmp_path):
     ({"path": "MUG", "up": "x"}, "up must be one of y, z"),
     ({"path": "MUG", "height": -1.0}, "height must be a positive number"),
     ({"path": "MUG", "height": float("nan")}, "height must be a positive number"),
+    ({"path": "MUG", "height": "0.9"}, "height must be a positive number"),
 ])
 def test_a_bad_mesh_file_is_one_clear_error(tmp_path, args, message):
     from datasets_synthetic.mesh_files import mesh_file
