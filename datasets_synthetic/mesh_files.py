@@ -19,10 +19,11 @@ CASES_DIR = Path(__file__).resolve().parent
 UP_AXES = ("y", "z")
 
 
-def _parts(path: Path) -> list[trimesh.Trimesh]:
-    """The file's triangle meshes in its own frame (a scene's geometries placed by their nodes, in
-    the order trimesh lists them); ``UserError`` for a file that is missing, unreadable or holds no
-    triangles."""
+def _parts(path: str) -> list[trimesh.Trimesh]:
+    """The triangle meshes of the file at ``path`` (relative to :data:`CASES_DIR`, or absolute) in
+    its own frame (a scene's geometries placed by their nodes, in the order trimesh lists them);
+    ``UserError`` for a file that is missing, unreadable or holds no triangles."""
+    path = Path(path) if Path(path).is_absolute() else CASES_DIR / path
     if not path.is_file():
         raise UserError(f"mesh file not found: {path}")
     try:
@@ -48,7 +49,7 @@ def mesh_file(path: str, up: str = "y", height: float | None = None):
         raise UserError(f"mesh_file: up must be one of {', '.join(UP_AXES)}, got {up!r}")
     if height is not None and not (isinstance(height, (int, float)) and np.isfinite(height) and height > 0):
         raise UserError(f"mesh_file: height must be a positive number, got {height!r}")
-    parts = _parts(Path(path) if Path(path).is_absolute() else CASES_DIR / path)
+    parts = _parts(path)
     for p in parts:
         if p.is_watertight:
             trimesh.repair.fix_normals(p)  # outward winding: Mitsuba's area emitters are one-sided
@@ -88,9 +89,11 @@ def _base_colour(part: trimesh.Trimesh, size: int) -> np.ndarray | None:
     image = getattr(material, "baseColorTexture", None)
     image = getattr(material, "image", None) if image is None else image
     factor = getattr(material, "baseColorFactor", None)
+    if image is None and factor is None:
+        return None
     factor = np.ones(3) if factor is None else np.asarray(factor, np.float64)[:3] / 255.0  # trimesh keeps it in bytes
     if image is None:
-        return None if getattr(material, "baseColorFactor", None) is None else np.broadcast_to(factor, (size, size, 3)).copy()
+        return np.broadcast_to(factor, (size, size, 3)).copy()
     rgb = np.asarray(image.convert("RGB").resize((size, size), Image.BILINEAR), np.float64) / 255.0
     return linear_from_srgb(rgb) * factor
 
@@ -100,6 +103,6 @@ def file_textures(path: str, up: str = "y", height: float | None = None, size: i
     per part label (``ipm.synth.reference_appearance``), or None unless every part has one."""
     from ipm.render.appearance import TEXTURE_SIZE
 
-    parts = _parts(Path(path) if Path(path).is_absolute() else CASES_DIR / path)
+    parts = _parts(path)
     colours = [_base_colour(p, size or TEXTURE_SIZE) for p in parts]
     return None if any(c is None for c in colours) else dict(enumerate(colours))

@@ -74,6 +74,13 @@ def _atlases():
     return body, handle
 
 
+def power_profile(t, r0: float, r1: float, gamma: float, bulge: float) -> np.ndarray:
+    """Profile offsets at heights ``t`` (0 at the base, 1 at the rim) from ``r0`` to ``r1`` by the
+    power curve ``t**gamma``, with a bulge (a waist where negative) of ``bulge`` at mid-height, kept
+    within 0.3-8."""
+    return np.clip(r0 + (r1 - r0) * t**gamma + bulge * np.sin(np.pi * t), 0.3, 8.0)
+
+
 def _preset_means(presets: dict) -> dict:
     """Mean sizes of the presets' parts (object units), which fix the charts' proportions."""
     w = catmull_rom_matrix(N_PROFILE, 64)
@@ -187,7 +194,7 @@ class Dishes(Generator):
         r0, r1 = rng.uniform(1.5, 5.0), rng.uniform(1.5, 7.5)
         gamma = float(np.exp(rng.uniform(np.log(0.4), np.log(2.5))))
         bulge = rng.uniform(-1.0, 1.5)
-        x[:N_PROFILE] = np.clip(r0 + (r1 - r0) * t**gamma + bulge * np.sin(np.pi * t), 0.3, 8.0)
+        x[:N_PROFILE] = power_profile(t, r0, r1, gamma, bulge)
         x[ix["y_scale"]] = rng.uniform(0.35, 1.2)
         with_handle = bool(rng.random() < 0.5) if handle is None else bool(handle)
         x[ix["has_handle"]] = float(with_handle)

@@ -62,7 +62,7 @@ def stemmed_vessel(gen, rng: np.random.Generator) -> np.ndarray:
     four a stem (0.02-0.07), the rest a bowl from 0.06-0.25 to a rim of 0.2-0.7 by a power curve
     with a bulge or waist, height 0.6-1.25. The dishes sampler (the test split's) draws no stem, so
     photos of its draws never show the ground between a bowl and its foot."""
-    from ipm.generators.dishes import N_PROFILE
+    from ipm.generators.dishes import N_PROFILE, power_profile
 
     spec = gen.spec
     x = spec.default.copy()
@@ -72,7 +72,7 @@ def stemmed_vessel(gen, rng: np.random.Generator) -> np.ndarray:
     t = np.linspace(0.0, 1.0, N_PROFILE - stem - 1)
     r0, r1 = rng.uniform(0.6, 2.5), rng.uniform(2.0, 7.0)
     gamma = float(np.exp(rng.uniform(np.log(0.3), np.log(2.0))))
-    x[stem + 1:N_PROFILE] = np.clip(r0 + (r1 - r0) * t**gamma + rng.uniform(-0.5, 1.5) * np.sin(np.pi * t), 0.3, 8.0)
+    x[stem + 1:N_PROFILE] = power_profile(t, r0, r1, gamma, rng.uniform(-0.5, 1.5))
     x[spec.index["y_scale"]] = rng.uniform(0.6, 1.25)
     x[spec.index["has_handle"]] = 0.0
     return spec.clip(x)
@@ -190,6 +190,11 @@ def _augmented(images, masks, key, batch: int):
     return network_input(x * 255.0), y
 
 
+def _summary(ious: np.ndarray | None) -> dict | None:
+    """Held-out photos' mask IoUs as their mean and worst (None where none were held out)."""
+    return None if ious is None else {"mean": float(ious.mean()), "worst": float(ious.min())}
+
+
 def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: dict | None = None,
         init: tuple | None = None, stemmed: dict | None = None, stemmed_share: float = STEMMED_SHARE):
     """Train the segmenter: the model and its metadata (held-out mask IoU, seconds). The photos
@@ -256,14 +261,14 @@ def fit(settings: SegmenterSettings, seed: int, progress: bool = False, data: di
     meta = {"seed": seed, "settings": asdict(settings), "res": model.res,
             "widths": [a.out_channels for a, _ in model.down], "generators": list(GENERATORS),
             "photos": data.get("ranges", []), "final_loss": float(np.mean(losses)), "device": jax.default_backend(),
-            "held_out_mask_iou": None if held is None else {"mean": float(held.mean()), "worst": float(held.min())},
+            "held_out_mask_iou": _summary(held),
             "render_seconds": round(render_s, 1), "train_seconds": round(time.perf_counter() - t0 - render_s, 1)}
     if init is not None:
         meta["init"] = init[1]
     if n_stem:
         meta["stemmed_photos"], meta["stemmed_share"] = stemmed.get("ranges", []), stemmed_share
         if stem_held is not None:
-            meta["stemmed_held_out_mask_iou"] = {"mean": float(stem_held.mean()), "worst": float(stem_held.min())}
+            meta["stemmed_held_out_mask_iou"] = _summary(stem_held)
     return model, meta
 
 
