@@ -394,3 +394,28 @@ def test_program_folder_keeps_the_most_recently_used(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["0.jaxexport", "2.jaxexport", "4.jaxexport", "note.txt"]
     programs._prune(tmp_path, keep=3)
     assert len(list(tmp_path.glob("*.jaxexport"))) == 3
+
+
+def test_kernels_written_out_equal_their_reductions():
+    """The pixel areas (sums of strided slices) equal the mean over a reshape to the bit, and a
+    ray's depth (its dot product written out) equals the reduction's to rounding."""
+    import jax.numpy as jnp
+
+    from ipm.render.edge_classes import ray_depth
+    from ipm.render.edge_scan import pixel_area
+
+    rng = np.random.default_rng(0)
+    for ss in (1, 2, 3):
+        covered = rng.random((12 * ss, 10 * ss)) > 0.4
+        mean = covered.reshape(12, ss, 10, ss).mean((1, 3))
+        assert np.array_equal(np.asarray(pixel_area(jnp.asarray(covered), ss)), mean.astype(np.float32))
+    n, k = rng.normal(size=(50, 3)).astype(np.float32), rng.normal(size=50).astype(np.float32)
+    face = rng.integers(0, 50, 200)
+    x, y = (rng.random(200) * 64).astype(np.float32), (rng.random(200) * 48).astype(np.float32)
+    depth = np.asarray(ray_depth((jnp.asarray(n), jnp.asarray(k)), jnp.asarray(face), jnp.asarray(x), jnp.asarray(y),
+                                 50.0, 64, 48))
+    d = np.stack([(x - 32) / 50.0, -(y - 24) / 50.0, -np.ones_like(x)], -1).astype(np.float64)
+    t = k[face] / np.sum(n[face] * d, -1)
+    want = np.where(t > 0, t, np.inf)
+    assert np.isfinite(depth).sum() == np.isfinite(want).sum() > 50
+    np.testing.assert_allclose(depth[np.isfinite(want)], want[np.isfinite(want)], rtol=1e-4)
