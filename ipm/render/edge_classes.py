@@ -16,7 +16,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ipm.render.edge_scan import covered_samples, pixel_area, project, scan_surrogate, spans
+from ipm.render.edge_scan import (covered_samples, pixel_area, project, running_max, running_sum, scan_surrogate,
+                                  spans)
 
 
 def face_planes(cam, faces):
@@ -53,10 +54,10 @@ def visible_faces(s: dict, jitter, planes, focal: float, width: int, height: int
     hs, ws = jitter.shape[0], (height if transposed else width) * ss
     c0, c1 = jnp.clip(s["c0"], 0, ws), jnp.clip(s["c1"], 0, ws)
     n = jnp.where(s["live"], jnp.maximum(c1 - c0, 0), 0)
-    end = jnp.cumsum(n)
+    end = running_sum(n)
     start, needed = end - n, end[-1]
     ids = jnp.where(n > 0, jnp.arange(len(n), dtype=jnp.int32), 0)
-    span = jax.lax.cummax(jnp.zeros(budget, jnp.int32).at[start].max(ids, mode="drop"))
+    span = running_max(jnp.zeros(budget, jnp.int32).at[start].max(ids, mode="drop"))
     k = jnp.arange(budget, dtype=jnp.int32)
     live = k < needed
     row, col, face = s["row"][span], c0[span] + k - start[span], s["face"][span]
@@ -98,7 +99,7 @@ def class_surrogate(xy, s: dict, owner, cls, class_grad, jitter, planes, focal: 
         sign.append(jnp.full(col_in.shape, sgn, jnp.float32))
     cand, inside, gap, diff, ends, sign = (jnp.concatenate(a) for a in (cand, inside, gap, diff, ends, sign))
     slots = len(s["row"])
-    pos = jnp.cumsum(cand) - 1
+    pos = running_sum(cand) - 1
     count = pos[-1] + 1
     k = jnp.full(capacity + 1, 0, jnp.int32).at[jnp.where(cand & (pos < capacity), pos, capacity)].set(
         jnp.arange(len(cand), dtype=jnp.int32))[:capacity]

@@ -51,6 +51,17 @@ def project(vertices, w2c, focal: float, width: int, height: int, xp=jnp):
     return xp.stack([width / 2 + focal * p[:, 0] / d, height / 2 - focal * p[:, 1] / d], 1), front
 
 
+def running_sum(x, axis: int = 0):
+    """Integer running sum of ``x`` (counts, flags) along ``axis``, as ``jnp.cumsum``: the same
+    integers by a parallel scan, which XLA's CPU backend runs 2-3 times faster than its cumsum."""
+    return jax.lax.associative_scan(jnp.add, x.astype(jnp.int32), axis=axis)
+
+
+def running_max(x):
+    """Integer running maximum of ``x`` (1-D), as ``jax.lax.cummax`` (by the same scan)."""
+    return jax.lax.associative_scan(jnp.maximum, x)
+
+
 def row_ranges(ys, face_ok, height: int, xp=jnp):
     """First sample row (F,) whose line may cross each triangle (vertex rows ``ys`` (F, 3), sample
     units) and how many rows from there (0 for triangles not drawn): the spans :func:`spans`
@@ -75,12 +86,12 @@ def spans(xy, faces, face_ok, jitter, width: int, budget: int) -> dict:
     height = jitter.shape[0]
     tri = xy[faces]  # (F, 3, 2)
     r0, n = row_ranges(tri[..., 1], face_ok, height)
-    end = jnp.cumsum(n)
+    end = running_sum(n)
     start = end - n
     needed = end[-1]
     # owner of each span slot: scatter each drawn triangle's index at its first slot, then a running max
     ids = jnp.where(n > 0, jnp.arange(len(n), dtype=jnp.int32), 0)
-    owner = jax.lax.cummax(jnp.zeros(budget, jnp.int32).at[start].max(ids, mode="drop"))
+    owner = running_max(jnp.zeros(budget, jnp.int32).at[start].max(ids, mode="drop"))
     k = jnp.arange(budget, dtype=jnp.int32)
     row = jnp.clip(r0[owner] + k - start[owner], 0, height - 1)
     y = row.astype(xy.dtype) + jitter[row, 1]
@@ -106,7 +117,7 @@ def covered_samples(s: dict, height: int, width: int):
     c0, c1 = jnp.clip(s["c0"], 0, width), jnp.clip(s["c1"], 0, width)
     w = s["live"].astype(jnp.int32)
     diff = jnp.zeros((height, width + 1), jnp.int32).at[s["row"], c0].add(w).at[s["row"], c1].add(-w)
-    return jnp.cumsum(diff[:, :width], axis=1) > 0
+    return running_sum(diff[:, :width], axis=1) > 0
 
 
 def scan_surrogate(xy, s: dict, covered, pixel_grad, ss: int, capacity: int):
@@ -124,7 +135,7 @@ def scan_surrogate(xy, s: dict, covered, pixel_grad, ss: int, capacity: int):
     total, count = 0.0, 0
     for side, col, gap, sign in (("left", s["c0"], s["c0"] - 1, -1.0), ("right", s["c1"], s["c1"], 1.0)):
         cand = s["live"] & (gap >= 0) & (gap < w) & ~covered[s["row"], jnp.clip(gap, 0, w - 1)]
-        pos = jnp.cumsum(cand) - 1
+        pos = running_sum(cand) - 1
         count = jnp.maximum(count, pos[-1] + 1)
         k = jnp.full(capacity + 1, 0, jnp.int32).at[jnp.where(cand & (pos < capacity), pos, capacity)].set(
             jnp.arange(len(cand), dtype=jnp.int32))[:capacity]

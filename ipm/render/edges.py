@@ -96,7 +96,9 @@ class EdgeRenderer:
         needs more than it has; the faces are put on the device once per ``key``."""
         key_b = key if budget_key is None else budget_key
         budget = self._budget(key_b, vertices, groups, classes)
-        faces = self._faces.setdefault(key, jnp.asarray(groups))
+        if key not in self._faces:  # not setdefault: its default would be copied to the device at every call
+            self._faces[key] = jnp.asarray(groups)
+        faces = self._faces[key]
         while True:
             *out, needed = run(faces, budget)
             have = np.atleast_1d(budget)
