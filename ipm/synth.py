@@ -287,7 +287,17 @@ def photographs(case: str, spec: dict, v, f, labels, uv, c2w: np.ndarray, fov: f
 
 def _write_reference(folder: Path, spec: dict, v, f, labels) -> None:
     save_ply(folder / "reference.ply", v, f, labels)
-    write_json(folder / "ground_truth.json", spec)
+    write_json(folder / "ground_truth.json", _recorded(spec))
+
+
+def _recorded(spec: dict) -> dict:
+    """The case as its ground_truth.json records it: a mesh file given by an absolute path by its
+    name alone, so that no machine's folders reach an output."""
+    src = spec.get("source", {})
+    path = src.get("args", {}).get("path") if src.get("recipe") == "mesh_file" else None
+    if path is None or not Path(path).is_absolute():
+        return spec
+    return {**spec, "source": {**src, "args": {**src["args"], "path": Path(path).name}}}
 
 
 def write_reference(case: str, out: str | Path) -> None:

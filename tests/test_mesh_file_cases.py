@@ -1,6 +1,8 @@
 """A benchmark case from a mesh file made by any tool (the recipe ``mesh_file``)."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -90,6 +92,8 @@ def test_a_mesh_file_case_is_synthesized_like_the_recipes(tmp_path, monkeypatch,
     assert (tmp_path / "views" / "reference.ply").is_file() and len(views.masks) == 2
     assert all(0.02 < m.mean() < 0.8 for m in views.masks)
     assert trimesh.load(tmp_path / "views" / "reference.ply").bounds[1, 1] == pytest.approx(0.8, abs=1e-6)
+    recorded = (tmp_path / "views" / "ground_truth.json").read_text()
+    assert str(tmp_path) not in recorded and json.loads(recorded)["source"]["args"]["path"] == "mug.glb"
 
 
 @pytest.mark.slow
