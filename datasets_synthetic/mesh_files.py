@@ -2,7 +2,8 @@
 trimesh reads), registered as the recipe ``mesh_file``, so a model made outside this project is a
 benchmark case like the recipes' (its case file: ``"source": {"recipe": "mesh_file", "args":
 {"path": "meshes/NAME.glb", "up": "z", "height": 0.9}}``; cups and buildings). Where the file
-gives every part a base colour on its UVs, the references wear it (:func:`file_textures`).
+gives every part a base colour (on its UVs, or per vertex as a scan's PLY does), the references
+wear it (:func:`file_textures`).
 """
 from __future__ import annotations
 
@@ -98,11 +99,53 @@ def _base_colour(part: trimesh.Trimesh, size: int) -> np.ndarray | None:
     return linear_from_srgb(rgb) * factor
 
 
+def _vertex_colours(part: trimesh.Trimesh) -> np.ndarray | None:
+    """A part's colours per vertex (V, 3), linear, as a scan's PLY or a glTF's COLOR_0 gives
+    them; None where the file gives none."""
+    from ipm.io.views import linear_from_srgb
+
+    visual = part.visual
+    if getattr(visual, "kind", None) != "vertex" or len(visual.vertex_colors) != len(part.vertices):
+        return None
+    return linear_from_srgb(np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0)
+
+
+def _baked(colours: np.ndarray, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: int) -> np.ndarray:
+    """Per-vertex ``colours`` of a part (its ``vertices`` and ``faces`` in the case's frame) as a
+    bitmap on the part's UVs: each texel's surface point takes its three nearest vertices' colours,
+    weighted by inverse distance."""
+    from scipy.spatial import cKDTree
+
+    from ipm.render.appearance import bake
+
+    used = np.unique(faces)
+    tree, k = cKDTree(vertices[used]), min(3, len(used))
+
+    def colour(points, normals):
+        d, i = tree.query(points, k=k)
+        d, i = d.reshape(len(points), k), i.reshape(len(points), k)
+        w = 1.0 / np.maximum(d, 1e-9)
+        return (colours[used][i] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
+
+    return bake(vertices, faces, uv[faces], colour, size)
+
+
 def file_textures(path: str, up: str = "y", height: float | None = None, size: int | None = None) -> dict | None:
     """The base colours of the mesh file at ``path`` (``mesh_file``'s arguments), one linear bitmap
-    per part label (``ipm.synth.reference_appearance``), or None unless every part has one."""
+    per part label (``ipm.synth.reference_appearance``): a part's texture or factor on its UVs, else
+    its vertex colours baked onto the UVs the case uses; None unless every part has one."""
     from ipm.render.appearance import TEXTURE_SIZE
 
+    size = size or TEXTURE_SIZE
     parts = _parts(path)
-    colours = [_base_colour(p, size or TEXTURE_SIZE) for p in parts]
+    colours = [_base_colour(p, size) for p in parts]
+    per_vertex = [_vertex_colours(p) if c is None else None for p, c in zip(parts, colours)]
+    if any(c is not None for c in per_vertex):
+        vertices, faces, labels, uv = mesh_file(path, up, height)
+        first = np.cumsum([0] + [len(p.vertices) for p in parts])
+        all_colours = np.zeros((len(vertices), 3))
+        for k, c in enumerate(per_vertex):
+            if c is not None:
+                all_colours[first[k]:first[k + 1]] = c
+                colours[k] = _baked(all_colours, vertices, faces[labels == k], uv, size)
     return None if any(c is None for c in colours) else dict(enumerate(colours))

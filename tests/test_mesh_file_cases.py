@@ -153,3 +153,23 @@ def test_a_textured_model_wears_its_own_base_colour(tmp_path, monkeypatch, mitsu
     upper = rgb[top][views.masks[0][top] > 0.5].mean(0)
     lower = rgb[bottom][views.masks[0][bottom] > 0.5].mean(0)
     assert upper[0] > upper[2] + 30 and lower[2] > lower[0] + 30
+
+
+def test_a_scan_wears_its_vertex_colours(tmp_path):
+    """A z-up PLY whose vertices are red above and blue below (a scan's colours, no UVs): its
+    colours baked onto the case's UVs, red in the bitmap's top rows (glTF's rows) and blue in its
+    bottom ones; a part of a scene without colours leaves the file to its class's materials."""
+    from datasets_synthetic.mesh_files import file_textures, mesh_file
+
+    m = trimesh.creation.cylinder(0.3, 1.0, sections=32)  # along z
+    m = m.subdivide().subdivide()
+    colours = np.where(m.vertices[:, 2:3] > 0, [[220, 30, 30, 255]], [[30, 30, 220, 255]]).astype(np.uint8)
+    m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=colours)
+    m.export(tmp_path / "scan.ply")
+    own = file_textures(str(tmp_path / "scan.ply"), up="z", size=32)
+    assert set(own) == {0} and own[0].shape == (32, 32, 3) and np.isfinite(own[0]).all()
+    assert own[0][3, 16, 0] > 0.5 > own[0][3, 16, 2] and own[0][28, 16, 2] > 0.5 > own[0][28, 16, 0]
+    assert len(mesh_file(str(tmp_path / "scan.ply"), up="z")[0]) == len(m.vertices)
+    bare = trimesh.creation.box((0.2, 0.2, 0.2))
+    trimesh.Scene([m, bare]).export(tmp_path / "two.glb")
+    assert file_textures(str(tmp_path / "two.glb"), up="z", size=32) is None
