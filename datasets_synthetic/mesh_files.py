@@ -99,15 +99,16 @@ def _base_colour(part: trimesh.Trimesh, size: int) -> np.ndarray | None:
     return linear_from_srgb(rgb) * factor
 
 
-def _vertex_colours(part: trimesh.Trimesh) -> np.ndarray | None:
-    """A part's colours per vertex (V, 3), linear, as a scan's PLY or a glTF's COLOR_0 gives
-    them; None where the file gives none."""
+def _vertex_colours(part: trimesh.Trimesh, linear: bool) -> np.ndarray | None:
+    """A part's colours per vertex (V, 3), linear, as a scan's PLY (sRGB bytes) or a glTF's COLOR_0
+    (``linear`` already, glTF's rule) gives them; None where the file gives none."""
     from ipm.io.views import linear_from_srgb
 
     visual = part.visual
     if getattr(visual, "kind", None) != "vertex" or len(visual.vertex_colors) != len(part.vertices):
         return None
-    return linear_from_srgb(np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0)
+    rgb = np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0
+    return rgb if linear else linear_from_srgb(rgb)
 
 
 def _baked(colours: np.ndarray, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: int) -> np.ndarray:
@@ -139,7 +140,8 @@ def file_textures(path: str, up: str = "y", height: float | None = None, size: i
     size = size or TEXTURE_SIZE
     parts = _parts(path)
     colours = [_base_colour(p, size) for p in parts]
-    per_vertex = [_vertex_colours(p) if c is None else None for p, c in zip(parts, colours)]
+    linear = Path(path).suffix.lower() in (".gltf", ".glb")
+    per_vertex = [_vertex_colours(p, linear) if c is None else None for p, c in zip(parts, colours)]
     if any(c is not None for c in per_vertex):
         vertices, faces, labels, uv = mesh_file(path, up, height)
         first = np.cumsum([0] + [len(p.vertices) for p in parts])

@@ -158,7 +158,8 @@ def test_a_textured_model_wears_its_own_base_colour(tmp_path, monkeypatch, mitsu
 def test_a_scan_wears_its_vertex_colours(tmp_path):
     """A z-up PLY whose vertices are red above and blue below (a scan's colours, no UVs): its
     colours baked onto the case's UVs, red in the bitmap's top rows (glTF's rows) and blue in its
-    bottom ones; a part of a scene without colours leaves the file to its class's materials."""
+    bottom ones; a PLY's bytes read as sRGB, a glTF's as linear; a part of a scene without colours
+    leaves the file to its class's materials."""
     from datasets_synthetic.mesh_files import file_textures, mesh_file
 
     m = trimesh.creation.cylinder(0.3, 1.0, sections=32)  # along z
@@ -170,6 +171,11 @@ def test_a_scan_wears_its_vertex_colours(tmp_path):
     assert set(own) == {0} and own[0].shape == (32, 32, 3) and np.isfinite(own[0]).all()
     assert own[0][3, 16, 0] > 0.5 > own[0][3, 16, 2] and own[0][28, 16, 2] > 0.5 > own[0][28, 16, 0]
     assert len(mesh_file(str(tmp_path / "scan.ply"), up="z")[0]) == len(m.vertices)
+    grey = trimesh.creation.box((0.2, 0.2, 0.2))  # one colour: sRGB bytes in a PLY, linear in a glTF
+    grey.visual = trimesh.visual.ColorVisuals(grey, vertex_colors=np.tile([128, 128, 128, 255], (8, 1)).astype(np.uint8))
+    for suffix, want in ((".ply", 0.2158), (".glb", 128 / 255)):
+        grey.export(tmp_path / f"grey{suffix}")
+        assert file_textures(str(tmp_path / f"grey{suffix}"), size=8)[0] == pytest.approx(want, abs=1e-3)
     bare = trimesh.creation.box((0.2, 0.2, 0.2))
     trimesh.Scene([m, bare]).export(tmp_path / "two.glb")
     assert file_textures(str(tmp_path / "two.glb"), up="z", size=32) is None
