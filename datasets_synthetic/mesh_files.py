@@ -111,43 +111,43 @@ def _vertex_colours(part: trimesh.Trimesh, linear: bool) -> np.ndarray | None:
     return rgb if linear else linear_from_srgb(rgb)
 
 
-def _baked(colours: np.ndarray, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: int) -> np.ndarray:
-    """Per-vertex ``colours`` of a part (its ``vertices`` and ``faces`` in the case's frame) as a
-    bitmap on the part's UVs: each texel's surface point takes its three nearest vertices' colours,
-    weighted by inverse distance."""
+def _baked(colours: np.ndarray, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
+           size: int) -> np.ndarray:
+    """A part's ``colours`` at its vertices ``points`` (V, 3) as a bitmap on its corner UVs (the
+    part's ``faces`` of the case's ``vertices``): each texel's surface point takes its three
+    nearest vertices' colours, weighted by inverse distance."""
     from scipy.spatial import cKDTree
 
     from ipm.render.appearance import bake
 
-    used = np.unique(faces)
-    tree, k = cKDTree(vertices[used]), min(3, len(used))
+    tree, k = cKDTree(points), min(3, len(points))
 
-    def colour(points, normals):
-        d, i = tree.query(points, k=k)
-        d, i = d.reshape(len(points), k), i.reshape(len(points), k)
+    def colour(at, normals):
+        d, i = tree.query(at, k=k)
+        d, i = d.reshape(len(at), k), i.reshape(len(at), k)
         w = 1.0 / np.maximum(d, 1e-9)
-        return (colours[used][i] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
+        return (colours[i] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
 
-    return bake(vertices, faces, uv[faces], colour, size)
+    return bake(vertices, faces, corner_uv, colour, size)
 
 
-def file_textures(path: str, up: str = "y", height: float | None = None, size: int | None = None) -> dict | None:
-    """The base colours of the mesh file at ``path`` (``mesh_file``'s arguments), one linear bitmap
-    per part label (``ipm.synth.reference_appearance``): a part's texture or factor on its UVs, else
-    its vertex colours baked onto the UVs the case uses; None unless every part has one."""
+def file_textures(path: str, mesh: tuple, size: int | None = None) -> dict | None:
+    """The base colours of the mesh file at ``path``, one linear bitmap per part label
+    (``ipm.synth.reference_appearance``): a part's texture or factor on its UVs, else its vertex
+    colours baked onto the case's UVs (``mesh``: the case's vertices, faces, labels and corner UVs,
+    ``ipm.synth.ground_truth_mesh``'s, whose vertices are the file's in its order); None unless
+    every part has one."""
     from ipm.render.appearance import TEXTURE_SIZE
 
     size = size or TEXTURE_SIZE
     parts = _parts(path)
     colours = [_base_colour(p, size) for p in parts]
     linear = Path(path).suffix.lower() in (".gltf", ".glb")
-    per_vertex = [_vertex_colours(p, linear) if c is None else None for p, c in zip(parts, colours)]
-    if any(c is not None for c in per_vertex):
-        vertices, faces, labels, uv = mesh_file(path, up, height)
-        first = np.cumsum([0] + [len(p.vertices) for p in parts])
-        all_colours = np.zeros((len(vertices), 3))
-        for k, c in enumerate(per_vertex):
-            if c is not None:
-                all_colours[first[k]:first[k + 1]] = c
-                colours[k] = _baked(all_colours, vertices, faces[labels == k], uv, size)
+    vertices, faces, labels, corner_uv = mesh
+    first = np.cumsum([0] + [len(p.vertices) for p in parts])
+    for k, part in enumerate(parts):
+        per_vertex = _vertex_colours(part, linear) if colours[k] is None else None
+        if per_vertex is not None:
+            own = labels == k
+            colours[k] = _baked(per_vertex, vertices[first[k]:first[k + 1]], vertices, faces[own], corner_uv[own], size)
     return None if any(c is None for c in colours) else dict(enumerate(colours))

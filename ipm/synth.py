@@ -241,7 +241,7 @@ def reference_appearance(case: dict, v, f, labels, uv) -> dict:
     if src.get("recipe") == "mesh_file":  # a model's own base colours, where its file gives them
         from datasets_synthetic.mesh_files import file_textures
 
-        own = file_textures(**src.get("args", {}))
+        own = file_textures(src["args"]["path"], (v, f, labels, uv))
         if own is not None:
             return own
     seed, scheme = case.get("texture_seed", 0), semantic_scheme(case)

@@ -10,6 +10,13 @@ import trimesh
 from ipm.errors import UserError
 
 
+def _truth(path, up="y"):
+    """The ground truth (vertices, faces, labels, corner UVs) of a mesh-file case of ``path``."""
+    from ipm.synth import ground_truth_mesh
+
+    return ground_truth_mesh({"name": "file", "source": {"recipe": "mesh_file", "args": {"path": str(path), "up": up}}})
+
+
 def _z_up_mug(path):
     """A closed z-up mug-like solid (a body and a handle, wound inwards on purpose) written to ``path``."""
     body = trimesh.creation.cylinder(0.4, 1.2, sections=32)  # along z, from z = -0.6 to 0.6
@@ -140,9 +147,10 @@ def test_a_textured_model_wears_its_own_base_colour(tmp_path, monkeypatch, mitsu
     m.export(tmp_path / "can.glb")
     case = {"name": "cup_can", "split": "dev", "generator": "dishes", "camera": {"elevation_deg": 10.0},
             "source": {"recipe": "mesh_file", "args": {"path": str(tmp_path / "can.glb"), "up": "z", "height": 1.0}}}
-    own = file_textures(**case["source"]["args"], size=32)
+    own = file_textures(case["source"]["args"]["path"], synth.ground_truth_mesh(case), size=32)
     assert own[0].shape == (32, 32, 3) and own[0][2, 16, 0] > 0.5 > own[0][2, 16, 2] and own[0][29, 16, 2] > 0.5
-    assert file_textures(str(_z_up_mug(tmp_path / "mug.glb"))) is None  # no base colour: class materials
+    mug = str(_z_up_mug(tmp_path / "mug.glb"))
+    assert file_textures(mug, _truth(mug)) is None  # no base colour: class materials
     monkeypatch.setattr(synth, "load_case", lambda name: case)
     synth.synthesize("cup_can", tmp_path / "views", n_views=1, res=48, spp=4, progress=False)
     views = load_views(tmp_path / "views" / "transforms.json")
@@ -167,15 +175,22 @@ def test_a_scan_wears_its_vertex_colours(tmp_path):
     colours = np.where(m.vertices[:, 2:3] > 0, [[220, 30, 30, 255]], [[30, 30, 220, 255]]).astype(np.uint8)
     m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=colours)
     m.export(tmp_path / "scan.ply")
-    own = file_textures(str(tmp_path / "scan.ply"), up="z", size=32)
+    own = file_textures(str(tmp_path / "scan.ply"), _truth(tmp_path / "scan.ply", up="z"), size=32)
     assert set(own) == {0} and own[0].shape == (32, 32, 3) and np.isfinite(own[0]).all()
     assert own[0][3, 16, 0] > 0.5 > own[0][3, 16, 2] and own[0][28, 16, 2] > 0.5 > own[0][28, 16, 0]
     assert len(mesh_file(str(tmp_path / "scan.ply"), up="z")[0]) == len(m.vertices)
+    halves = m.copy()  # red where x > 0 (about the UVs' seam, u near 0 and 1), blue elsewhere
+    halves.visual = trimesh.visual.ColorVisuals(halves, vertex_colors=np.where(
+        m.vertices[:, :1] > 0, [[220, 30, 30, 255]], [[30, 30, 220, 255]]).astype(np.uint8))
+    halves.export(tmp_path / "halves.ply")
+    middle = file_textures(str(tmp_path / "halves.ply"), _truth(tmp_path / "halves.ply", up="z"), size=32)[0][4:28, 16]
+    assert (middle[:, 2] > 0.5).all() and (middle[:, 0] < 0.1).all()  # blue opposite the seam, red nowhere there
     grey = trimesh.creation.box((0.2, 0.2, 0.2))  # one colour: sRGB bytes in a PLY, linear in a glTF
     grey.visual = trimesh.visual.ColorVisuals(grey, vertex_colors=np.tile([128, 128, 128, 255], (8, 1)).astype(np.uint8))
     for suffix, want in ((".ply", 0.2158), (".glb", 128 / 255)):
         grey.export(tmp_path / f"grey{suffix}")
-        assert file_textures(str(tmp_path / f"grey{suffix}"), size=8)[0] == pytest.approx(want, abs=1e-3)
+        grey_file = tmp_path / f"grey{suffix}"
+        assert file_textures(str(grey_file), _truth(grey_file), size=8)[0] == pytest.approx(want, abs=1e-3)
     bare = trimesh.creation.box((0.2, 0.2, 0.2))
     trimesh.Scene([m, bare]).export(tmp_path / "two.glb")
-    assert file_textures(str(tmp_path / "two.glb"), up="z", size=32) is None
+    assert file_textures(str(tmp_path / "two.glb"), _truth(tmp_path / "two.glb", up="z"), size=32) is None
