@@ -14,6 +14,7 @@ import trimesh
 
 from datasets_synthetic.recipes import RECIPES, _cylindrical_uv
 from ipm.errors import UserError
+from ipm.uv import corners_from_vertices
 
 CASES_DIR = Path(__file__).resolve().parent
 """Relative paths are read from here (``datasets_synthetic/``)."""
@@ -32,6 +33,10 @@ def _parts(path: str) -> list[trimesh.Trimesh]:
     except Exception as exc:  # trimesh raises many kinds for a file it cannot parse
         raise UserError(f"unreadable mesh file {path}: {exc}") from None
     parts = loaded.dump(concatenate=False) if isinstance(loaded, trimesh.Scene) else [loaded]
+    for part in parts if isinstance(loaded, trimesh.Scene) else ():  # a copy keeps a material's UVs, not COLOR_0
+        kept = getattr(getattr(loaded.geometry.get(part.metadata.get("name")), "visual", None), "vertex_attributes", {})
+        if "color" in kept and getattr(part.visual, "kind", None) == "texture":
+            part.visual.vertex_attributes["color"] = kept["color"]
     parts = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
     if not parts:
         raise UserError(f"mesh file {path} holds no triangles")
@@ -44,8 +49,9 @@ def mesh_file(path: str, up: str = "y", height: float | None = None):
     it: y up (``up`` "z": a z-up file, as many tools write OBJ and STL, turned to y up), standing on
     y = 0 and centred on the y axis (its bounding box's middle), scaled to ``height`` units where
     given (else the file's units); one part label per geometry of a scene (:func:`_parts`' order);
-    each part's faces wound outwards where it is closed; the file's UVs where every vertex has one,
-    else the angle about +y and the height. The volumetric metrics assume closed parts."""
+    each part's faces wound outwards where it is closed. UVs per corner (F, 3, 2): a part's own where
+    each of its vertices has one (as the file has them: its seams are its own), else the angle about
+    +y and the height. The volumetric metrics assume closed parts."""
     if up not in UP_AXES:
         raise UserError(f"mesh_file: up must be one of {', '.join(UP_AXES)}, got {up!r}")
     if height is not None and not (isinstance(height, (int, float)) and np.isfinite(height) and height > 0):
@@ -69,26 +75,28 @@ def mesh_file(path: str, up: str = "y", height: float | None = None):
     vertices = vertices - np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
     if height is not None:
         vertices *= height / (hi[1] - lo[1])
-    if all(u is not None and len(u) == len(p.vertices) for u, p in zip(uv, parts)):
-        uv = np.concatenate([np.asarray(u, np.float64) for u in uv])
-    else:
-        uv = _cylindrical_uv(vertices)
-    return vertices, faces, labels, uv
+    about = corners_from_vertices(faces, _cylindrical_uv(vertices))  # u unwrapped across its seam
+    own = [u is not None and len(u) == len(p.vertices) for u, p in zip(uv, parts)]
+    corner = np.concatenate([np.asarray(uv[k], np.float64)[np.asarray(p.faces)] if own[k] else about[labels == k]
+                             for k, p in enumerate(parts)])
+    return vertices, faces, labels, corner
 
 
 def _base_colour(part: trimesh.Trimesh, size: int) -> np.ndarray | None:
     """A part's base colour as a (size, size, 3) linear bitmap in glTF's rows (the first at v = 1,
-    as ``ipm.render.appearance.bake``'s): its texture (sRGB) times its factor (linear), or the factor
-    alone; None where the file gives the part neither or no UVs."""
+    as ``ipm.render.appearance.bake``'s): its texture (sRGB, where the part has UVs) times its factor
+    (linear), or the factor alone; None where the file gives the part neither."""
     from PIL import Image
 
     from ipm.io.views import linear_from_srgb
 
     material, uv = getattr(part.visual, "material", None), getattr(part.visual, "uv", None)
-    if material is None or uv is None or len(uv) != len(part.vertices):
+    if material is None:
         return None
     image = getattr(material, "baseColorTexture", None)
     image = getattr(material, "image", None) if image is None else image
+    if uv is None or len(uv) != len(part.vertices):
+        image = None  # a texture needs the part's UVs
     factor = getattr(material, "baseColorFactor", None)
     if image is None and factor is None:
         return None
@@ -101,13 +109,19 @@ def _base_colour(part: trimesh.Trimesh, size: int) -> np.ndarray | None:
 
 def _vertex_colours(part: trimesh.Trimesh, linear: bool) -> np.ndarray | None:
     """A part's colours per vertex (V, 3), linear, as a scan's PLY (sRGB bytes) or a glTF's COLOR_0
-    (``linear`` already, glTF's rule) gives them; None where the file gives none."""
+    (``linear`` already, glTF's rule; beside a material, as trimesh keeps it, in the accessor's own
+    type) gives them; None where the file gives none."""
     from ipm.io.views import linear_from_srgb
 
     visual = part.visual
-    if getattr(visual, "kind", None) != "vertex" or len(visual.vertex_colors) != len(part.vertices):
+    if getattr(visual, "kind", None) == "vertex":
+        rgb = np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0
+    else:
+        rgb = np.asarray(getattr(visual, "vertex_attributes", {}).get("color", np.zeros((0, 3))))
+        scale = np.iinfo(rgb.dtype).max if np.issubdtype(rgb.dtype, np.integer) else 1.0  # normalized integers
+        rgb = rgb[:, :3].astype(np.float64) / scale
+    if len(rgb) != len(part.vertices):
         return None
-    rgb = np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0
     return rgb if linear else linear_from_srgb(rgb)
 
 
@@ -133,10 +147,10 @@ def _baked(colours: np.ndarray, points: np.ndarray, vertices: np.ndarray, faces:
 
 def file_textures(path: str, mesh: tuple, size: int | None = None) -> dict | None:
     """The base colours of the mesh file at ``path``, one linear bitmap per part label
-    (``ipm.synth.reference_appearance``): a part's texture or factor on its UVs, else its vertex
-    colours baked onto the case's UVs (``mesh``: the case's vertices, faces, labels and corner UVs,
-    ``ipm.synth.ground_truth_mesh``'s, whose vertices are the file's in its order); None unless
-    every part has one."""
+    (``ipm.synth.reference_appearance``): a part's texture and factor on its UVs, times its vertex
+    colours (glTF's product) baked onto the case's UVs (``mesh``: the case's vertices, faces, labels
+    and corner UVs, ``ipm.synth.ground_truth_mesh``'s, whose vertices are the file's in its order and
+    whose UVs are a part's own where it has them); None unless every part has one of them."""
     from ipm.render.appearance import TEXTURE_SIZE
 
     size = size or TEXTURE_SIZE
@@ -146,8 +160,9 @@ def file_textures(path: str, mesh: tuple, size: int | None = None) -> dict | Non
     vertices, faces, labels, corner_uv = mesh
     first = np.cumsum([0] + [len(p.vertices) for p in parts])
     for k, part in enumerate(parts):
-        per_vertex = _vertex_colours(part, linear) if colours[k] is None else None
+        per_vertex = _vertex_colours(part, linear)
         if per_vertex is not None:
             own = labels == k
-            colours[k] = _baked(per_vertex, vertices[first[k]:first[k + 1]], vertices, faces[own], corner_uv[own], size)
+            baked = _baked(per_vertex, vertices[first[k]:first[k + 1]], vertices, faces[own], corner_uv[own], size)
+            colours[k] = baked if colours[k] is None else colours[k] * baked
     return None if any(c is None for c in colours) else dict(enumerate(colours))

@@ -97,7 +97,7 @@ def ground_truth_mesh(case: dict, lod: int | None = None):
             raise UserError(f"case {case.get('name')!r}: a tree cannot come from a mesh file (the GA reads "
                             "branch and foliage from the references' part colours)")
         v, f, labels, uv = RECIPES[src["recipe"]](**src.get("args", {}))
-        uv = corners_from_vertices(f, uv)  # recipes give one UV a vertex
+        uv = corners_from_vertices(f, uv) if np.ndim(uv) == 2 else uv  # one UV a vertex, or (F, 3, 2) a corner
     pose = case.get("pose", {})
     # R_y of ipm.pose.yaw_matrix by trimesh's axis-angle formula, kept: at some angles it rounds the
     # 1 on the y axis to 1 - 2**-53, and the ground truths stay exactly as they were made

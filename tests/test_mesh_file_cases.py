@@ -31,7 +31,7 @@ def _z_up_mug(path):
 
 def test_a_mesh_file_stands_upright_on_the_ground_at_its_height(tmp_path):
     """A z-up GLB of two geometries: y up, on y = 0, centred on the y axis, scaled to the height
-    asked for; one label per geometry; every part wound outwards (positive volume); UVs a vertex."""
+    asked for; one label per geometry; every part wound outwards (positive volume); UVs a corner."""
     from datasets_synthetic.mesh_files import mesh_file
 
     v, f, labels, uv = mesh_file(str(_z_up_mug(tmp_path / "mug.glb")), up="z", height=0.9)
@@ -39,7 +39,7 @@ def test_a_mesh_file_stands_upright_on_the_ground_at_its_height(tmp_path):
     lo, hi = v.min(0), v.max(0)
     assert (lo[0] + hi[0]) / 2 == pytest.approx(0.0, abs=1e-9) and (lo[2] + hi[2]) / 2 == pytest.approx(0.0, abs=1e-9)
     assert np.ptp(v[:, 0]) > np.ptp(v[:, 2])  # the handle sticks out along x, as in the file
-    assert sorted(np.unique(labels)) == [0, 1] and len(labels) == len(f) and uv.shape == (len(v), 2)
+    assert sorted(np.unique(labels)) == [0, 1] and len(labels) == len(f) and uv.shape == (len(f), 3, 2)
     for k in (0, 1):
         part = trimesh.Trimesh(v, f[labels == k], process=True)
         assert part.is_watertight and part.volume > 0
@@ -194,3 +194,73 @@ def test_a_scan_wears_its_vertex_colours(tmp_path):
     bare = trimesh.creation.box((0.2, 0.2, 0.2))
     trimesh.Scene([m, bare]).export(tmp_path / "two.glb")
     assert file_textures(str(tmp_path / "two.glb"), _truth(tmp_path / "two.glb", up="z"), size=32) is None
+
+
+def _glb(path, vertices, faces, factor, uv=None, colours=None):
+    """A one-primitive GLB written byte by byte: POSITION, TEXCOORD_0 where ``uv`` is given,
+    COLOR_0 (unsigned bytes, normalized) where ``colours`` (V, 4) is, a material of base colour
+    ``factor`` (linear RGBA)."""
+    import struct
+
+    arrays = [(np.asarray(vertices, np.float32), "VEC3", 5126, False), (np.asarray(faces, np.uint32).ravel(), "SCALAR", 5125, False)]
+    if uv is not None:
+        arrays.append((np.asarray(uv, np.float32), "VEC2", 5126, False))
+    if colours is not None:
+        arrays.append((np.asarray(colours, np.uint8), "VEC4", 5121, True))
+    blob, views, accessors = b"", [], []
+    for k, (a, kind, component, normalized) in enumerate(arrays):
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": a.nbytes})
+        accessor = {"bufferView": k, "componentType": component, "count": len(a), "type": kind}
+        if k == 0:
+            accessor |= {"min": a.min(0).tolist(), "max": a.max(0).tolist()}
+        accessors.append(accessor | ({"normalized": True} if normalized else {}))
+        blob += a.tobytes() + b"\0" * (-a.nbytes % 4)
+    attributes = {"POSITION": 0} | ({"TEXCOORD_0": 2} if uv is not None else {})
+    if colours is not None:
+        attributes["COLOR_0"] = len(arrays) - 1
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": attributes, "indices": 1, "material": 0}]}],
+           "materials": [{"pbrMetallicRoughness": {"baseColorFactor": list(factor)}}],
+           "buffers": [{"byteLength": len(blob)}], "bufferViews": views, "accessors": accessors}
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob
+    path.write_bytes(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
+    return path
+
+
+def test_a_models_own_uvs_colours_and_factors_as_gltf_has_them(tmp_path):
+    """A file's UVs are its own per corner (a triangle spanning the whole texture is not taken for
+    one across a revolved part's seam); a factor without UVs is the part's colour; COLOR_0 beside a
+    factor multiplies it (glTF's product); a part without UVs beside one with them keeps the
+    other's UVs and is given the angle and height."""
+    from datasets_synthetic.mesh_files import file_textures, mesh_file
+
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    box = trimesh.Trimesh(square, trimesh.creation.box().faces, process=False)
+    box.fix_normals()
+    whole = np.where(square[:, :2] > 0.5, 1.0, 0.0)  # each corner at a corner of the texture
+    _glb(tmp_path / "atlas.glb", box.vertices, box.faces, (0.5, 0.5, 0.5, 1.0), uv=whole)
+    v, f, labels, corner = mesh_file(str(tmp_path / "atlas.glb"))
+    file_uv = whole.copy()
+    file_uv[:, 1] = 1.0 - file_uv[:, 1]  # trimesh's origin at the bottom
+    assert np.array_equal(corner, file_uv[f]) and corner[..., 0].max() == 1.0
+    assert np.ptp(corner[..., 0], axis=1).max() == 1.0  # a triangle across the texture, kept so
+
+    _glb(tmp_path / "plain.glb", box.vertices, box.faces, (0.2, 0.4, 0.8, 1.0))  # a factor, no UVs
+    assert file_textures(str(tmp_path / "plain.glb"), _truth(tmp_path / "plain.glb"), size=8)[0] == pytest.approx(
+        np.broadcast_to([0.2, 0.4, 0.8], (8, 8, 3)), abs=2e-3)
+    grey = np.tile([255, 128, 0, 255], (8, 1))
+    _glb(tmp_path / "tinted.glb", box.vertices, box.faces, (0.5, 1.0, 1.0, 1.0), uv=whole, colours=grey)
+    tinted = file_textures(str(tmp_path / "tinted.glb"), _truth(tmp_path / "tinted.glb"), size=8)[0]
+    assert tinted[2:6, 2:6] == pytest.approx(np.broadcast_to([0.5, 128 / 255, 0.0], (4, 4, 3)), abs=2e-3)
+
+    bare = trimesh.creation.cylinder(0.3, 1.0, sections=16)
+    bare.apply_translation([3.0, 0.0, 0.0])
+    trimesh.Scene([trimesh.load(tmp_path / "atlas.glb", force="mesh", process=False), bare]).export(tmp_path / "two.glb")
+    v, f, labels, corner = mesh_file(str(tmp_path / "two.glb"))
+    k = int(np.bincount(labels).argmin())  # the box: 12 triangles
+    own = f[labels == k]
+    assert np.array_equal(corner[labels == k], file_uv[own - own.min()])  # its own UVs
+    u = corner[labels != k][..., 0]
+    assert (np.ptp(u, axis=1) < 0.5).all() and u.max() > 0.9  # the cylinder's angle, unwrapped at its seam
