@@ -254,32 +254,6 @@ def test_back_faces_culled_on_closed_solids_change_nothing_but_the_work():
 
 
 @pytest.mark.slow
-def test_a_class_loss_on_the_drawn_vertices_is_the_loss_on_all():
-    """The class-mask loss fed only the vertices a building's faces draw (a few hundred of the tens of
-    thousands its program computes for every topology) gives the loss on all of them, its gradient
-    to rounding, and none on the vertices no face draws."""
-    from ipm.render import edges
-
-    gen, z0, fn, topo, groups, cams = _house(("window",))
-    v = np.asarray(fn(z0)).reshape(-1, 3)
-    r = EdgeRenderer(cams[:1], FOV, 48, 48)
-    faces, classes = edges.padded(*edges._face_classes(groups))
-    drawn, faces_drawn = edges.drawn_vertices(faces)
-    assert len(drawn) < len(v) // 8 and np.array_equal(drawn[faces_drawn], faces)
-    masks = r.render(v + [0.02, 0.0, 0.0], groups, seed=1)
-    args = (classes, masks[:, 0], masks[:, 1:2], r._w2c, r.focal, r._jitter(3))
-    budgets = r._budget("house", lambda: v, faces, classes)
-    program = edges._class_loss_fn(48, 48, r.ss, budgets, ((1.0,), 2, "mse"), False)
-    every = np.arange(len(v), dtype=np.int32)
-    la, ga, _ = program(v.reshape(-1), every, faces.astype(np.int32), *args)
-    lb, gb, _ = program(v.reshape(-1), drawn, faces_drawn, *args)
-    assert float(lb) == pytest.approx(float(la), rel=1e-6) and np.abs(ga).max() > 0
-    np.testing.assert_allclose(gb, ga, rtol=1e-5, atol=1e-6 * np.abs(ga).max())
-    undrawn = np.setdiff1d(np.arange(len(v)), drawn)
-    assert not np.asarray(gb).reshape(-1, 3)[undrawn].any()
-
-
-@pytest.mark.slow
 def test_meshes_of_one_padded_size_differing_inside_are_told_apart():
     """Face arrays padded to one size with the same first and last triangles, drawn in turn by one
     renderer, each give their own image (the faces kept on the device are looked up by content)."""
@@ -332,7 +306,7 @@ def fresh_programs():
     from ipm.render import edges
 
     builders = (edges._render_fn, edges._class_render_fn, edges._loss_fn, edges._silhouette_loss, edges._class_loss_fn,
-                edges._pullback, edges._vertices)
+                edges._pullback)
 
     def clear():
         for b in builders:
@@ -372,9 +346,8 @@ def test_programs_kept_between_processes_give_the_same_numbers(monkeypatch, tmp_
         out.append(edges._pullback(program, name)(z, constants, np.linspace(-1, 1, 3 * topo.n_vertices)))
         if every:  # the class loss without the building's pullback (half a minute to compile)
             class_loss = edges._class_loss_fn(32, 32, h.ss, budgets, ((0.5,), 1, "mse"))
-            drawn, faces_drawn = edges.drawn_vertices(faces)
             out += [*h.render(v, groups)[0],
-                    *class_loss(v.reshape(-1), drawn, faces_drawn, classes, blank, blank[:, None], h._w2c, h.focal,
+                    *class_loss(v.reshape(-1), faces, classes, blank, blank[:, None], h._w2c, h.focal,
                                 h._jitter(1))[:2]]
         return out
 

@@ -80,17 +80,6 @@ def padded(groups: np.ndarray, classes: np.ndarray) -> tuple[np.ndarray, np.ndar
             np.concatenate([classes, np.zeros(pad, classes.dtype)]))
 
 
-def drawn_vertices(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The vertices ``faces`` (F, 3) index, in order, padded (with the last) to the next power of
-    two (at least 256), and the faces' indices into them: a building's program computes every
-    solid any topology may have (tens of thousands of vertices) and one topology draws about a
-    thousand, so the class-mask loss projects only those (:func:`_class_loss_fn`)."""
-    used = np.unique(faces)
-    size = max(256, 1 << (len(used) - 1).bit_length())
-    padded_used = np.pad(used, (0, size - len(used)), mode="edge").astype(np.int32)
-    return padded_used, np.searchsorted(used, faces).astype(np.int32)
-
-
 def _class_sizes(classes: np.ndarray) -> tuple[int, ...]:
     """The number of faces of each class, a part of the keys of meshes with classes."""
     return tuple(int(c) for c in np.bincount(classes.astype(np.int64)))
@@ -151,24 +140,10 @@ def split(vertex_fn: Callable) -> tuple[Callable, np.ndarray, str | None]:
     return _ignoring_constants(vertex_fn), _NO_CONSTANTS, None
 
 
-def _with_generator(fn: Callable, name: str | None, *settings, options: dict | None = None) -> Callable:
-    """``fn``, a program around the generator's vertex program ``name``, jitted (with XLA's
-    ``options``); kept between processes where that program has a name (its code: the package's
-    every module)."""
-    if name is None:
-        return jax.jit(fn, compiler_options=options)
-    return StoredProgram(" ".join(map(str, (name, *settings))), fn, package_sources(), options)
-
-
-NO_LIBRARY_FUSIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
-"""XLA's CPU options for the generator's own programs: no dots and reductions handed to the YNNPACK
-library, whose call costs more than a building's small ones."""
-
-
-@lru_cache(maxsize=64)
-def _vertices(program: Callable, name: str | None = None):
-    """jit(z, constants) -> the generator's vertices ``program(z, constants)`` (:func:`split`)."""
-    return _with_generator(program, name, "vertices", options=NO_LIBRARY_FUSIONS)
+def _with_generator(fn: Callable, name: str | None, *settings) -> Callable:
+    """``fn``, a program around the generator's vertex program ``name``, jitted; kept between
+    processes where that program has a name (its code: the package's every module)."""
+    return jax.jit(fn) if name is None else _stored(fn, name, *settings, sources=package_sources())
 
 
 @lru_cache(maxsize=1)
@@ -213,9 +188,8 @@ def _silhouette_loss(width: int, height: int, ss: int, budget: int) -> StoredPro
 @lru_cache(maxsize=64)
 def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], highlight: tuple,
                    cull: bool = False) -> StoredProgram:
-    """(vertices, drawn, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
-    d vertices, spans and fragments needed per view (n, 2)), the faces indexing the vertices ``drawn``
-    (:func:`drawn_vertices`), with the class-mask terms ``highlight``
+    """(vertices, faces, classes, targets, class_targets, w2c, focal, jitter) -> (loss, d loss /
+    d vertices, spans and fragments needed per view (n, 2)) with the class-mask terms ``highlight``
     (a weight per class, pyramid levels, loss; class targets (n, K, H, W)). The generator is not in
     the program (a building's takes longer to compile than the renderer, and each resolution and
     budget is a program of its own): its vector-Jacobian product is compiled once (:func:`_pullback`).
@@ -243,11 +217,8 @@ def _class_loss_fn(width: int, height: int, ss: int, budgets: tuple[int, int], h
         loss, sur, needed = jax.vmap(view)(w2c, targets, class_targets, jitter)
         return jnp.sum(sur), (jnp.sum(loss), needed)
 
-    def fn(vertices, drawn, *args):
-        def on_drawn(v):  # the rest of the vertices is never projected
-            return surrogate(v.reshape(-1, 3)[drawn], *args)
-
-        (_, (loss, needed)), grad = jax.value_and_grad(on_drawn, has_aux=True)(vertices)
+    def fn(*args):
+        (_, (loss, needed)), grad = jax.value_and_grad(surrogate, has_aux=True)(*args)
         return loss, grad, needed
 
     return _stored(fn, "class_loss", width, height, ss, budgets, highlight, *(("cull",) if cull else ()))
@@ -266,4 +237,4 @@ def _pullback(program: Callable, name: str | None = None):
     def fn(z, constants, cotangent):
         return jax.vjp(lambda z: program(z, constants), z)[1](cotangent)[0]
 
-    return _with_generator(fn, name, "pullback", options=NO_LIBRARY_FUSIONS)
+    return _with_generator(fn, name, "pullback")

@@ -18,7 +18,7 @@ import numpy as np
 from ipm.render.edge_classes import front_facing, pyramid_loss  # noqa: F401  (pyramid_loss re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
     _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
-    _vertices, SMALL_IMAGE, _round_up, _silhouette_loss, drawn_vertices, padded, split, with_headroom,
+    SMALL_IMAGE, _round_up, _silhouette_loss, padded, split, with_headroom,
 )
 from ipm.render.edge_scan import camera_arrays, project, row_ranges, supersampling
 from ipm.render.silhouette import group_count as _group_count, highlight_arrays
@@ -187,25 +187,20 @@ class EdgeRenderer:
 
     def _class_call(self, vertex_fn, z, faces, targets, jitter, n_vertices: int, highlight: tuple):
         """:meth:`_call` with a class-mask term: the generator's vertices, the render program's loss
-        and d loss / d vertices (on the vertices the faces draw), then the generator's pullback."""
+        and d loss / d vertices, then the generator's pullback."""
         if (vertex_fn, n_vertices) not in self._blocks:
             size = int(np.prod(jax.eval_shape(vertex_fn, z).shape))
             self._blocks[vertex_fn, n_vertices] = size // (3 * int(n_vertices))
         groups, classes = padded(*_face_classes(faces, n_vertices, self._blocks[vertex_fn, n_vertices]))
         key = ("class", *_faces_key(groups), *_class_sizes(classes))
         if key not in self._classes:
-            drawn, faces_drawn = drawn_vertices(groups)
-            self._classes[key] = (jnp.asarray(classes), jnp.asarray(drawn), faces_drawn, drawn[:faces_drawn.max() + 1])
-        cls, drawn, faces_drawn, drawn_np = self._classes[key]
-        class_targets = self._on_device(highlight[0])
+            self._classes[key] = jnp.asarray(classes)
+        cls, class_targets = self._classes[key], self._on_device(highlight[0])
         program, constants, name = split(vertex_fn)
-        vertices = _vertices(program, name)(z, constants)
-
-        def run(f, budget):
-            return _class_loss_fn(self.width, self.height, self.ss, budget, tuple(highlight[1:]), self.cull)(
-                vertices, drawn, f, cls, targets, class_targets, self._w2c, self.focal, jitter)
-
-        loss, dv = self._run(key, faces_drawn, lambda: np.asarray(vertices).reshape(-1, 3)[drawn_np], run, classes,
-                             ("class", len(groups), len(highlight[1])))
+        vertices = vertex_fn(z)
+        loss, dv = self._run(key, groups, lambda: vertices, lambda f, budget: _class_loss_fn(
+            self.width, self.height, self.ss, budget, tuple(highlight[1:]), self.cull)(
+            vertices, f, cls, targets, class_targets, self._w2c, self.focal, jitter), classes,
+            ("class", len(groups), len(highlight[1])))
         grad = np.asarray(_pullback(program, name)(z, constants, dv), np.float64)
         return float(loss), np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)

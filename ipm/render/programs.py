@@ -46,10 +46,10 @@ class StoredProgram:
 
     Call it eagerly (jitted) or from inside another function being traced (:meth:`inline`)."""
 
-    def __init__(self, name: str, fn: Callable, sources: tuple[str, ...], compiler_options: dict | None = None):
+    def __init__(self, name: str, fn: Callable, sources: tuple[str, ...]):
         self.name, self.fn, self.sources = name, fn, tuple(sources)
         self._loaded: dict = {}
-        self.jitted = jax.jit(self.inline, compiler_options=compiler_options)
+        self.jitted = jax.jit(self.inline)
 
     def __call__(self, *args):
         return self.jitted(*args)
