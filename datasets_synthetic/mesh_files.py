@@ -32,11 +32,15 @@ def _parts(path: str) -> list[trimesh.Trimesh]:
         loaded = trimesh.load(path, process=False)
     except Exception as exc:  # trimesh raises many kinds for a file it cannot parse
         raise UserError(f"unreadable mesh file {path}: {exc}") from None
-    parts = loaded.dump(concatenate=False) if isinstance(loaded, trimesh.Scene) else [loaded]
-    for part in parts if isinstance(loaded, trimesh.Scene) else ():  # a copy keeps a material's UVs, not COLOR_0
-        kept = getattr(getattr(loaded.geometry.get(part.metadata.get("name")), "visual", None), "vertex_attributes", {})
-        if "color" in kept and getattr(part.visual, "kind", None) == "texture":
-            part.visual.vertex_attributes["color"] = kept["color"]
+    if isinstance(loaded, trimesh.Scene):
+        parts = loaded.dump(concatenate=False)
+        for part in parts:  # trimesh's copy keeps a material's UVs, not its COLOR_0
+            source = loaded.geometry.get(part.metadata.get("name"))
+            kept = getattr(getattr(source, "visual", None), "vertex_attributes", {})
+            if "color" in kept and getattr(part.visual, "kind", None) == "texture":
+                part.visual.vertex_attributes["color"] = kept["color"]
+    else:
+        parts = [loaded]
     parts = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
     if not parts:
         raise UserError(f"mesh file {path} holds no triangles")
@@ -115,11 +119,11 @@ def _vertex_colours(part: trimesh.Trimesh, linear: bool) -> np.ndarray | None:
 
     visual = part.visual
     if getattr(visual, "kind", None) == "vertex":
-        rgb = np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0
+        rgb = np.asarray(visual.vertex_colors)  # bytes
     else:
         rgb = np.asarray(getattr(visual, "vertex_attributes", {}).get("color", np.zeros((0, 3))))
-        scale = np.iinfo(rgb.dtype).max if np.issubdtype(rgb.dtype, np.integer) else 1.0  # normalized integers
-        rgb = rgb[:, :3].astype(np.float64) / scale
+    scale = np.iinfo(rgb.dtype).max if np.issubdtype(rgb.dtype, np.integer) else 1.0  # normalized integers
+    rgb = rgb[:, :3].astype(np.float64) / scale
     if len(rgb) != len(part.vertices):
         return None
     return rgb if linear else linear_from_srgb(rgb)

@@ -4,9 +4,9 @@ the out-of-family cases of ``datasets_synthetic``.
 A recipe returns world-frame vertices (standing on y = 0, centred on the y axis), faces with
 outward winding (Mitsuba's area emitters are one-sided), a part label per face and UVs (one a
 vertex, or (F, 3, 2) one a corner, taken as they are); every part is closed, so the volumetric
-metrics apply. Recipes with ``semantic_labels`` have the parts of
-that label map in order (label = part + 1: trees branch, foliage; buildings wall, window, roof,
-door), and synth writes label images for them. The trees' recipes are in
+metrics apply. Recipes with ``semantic_labels`` have the parts of that label map in order (label =
+part + 1: trees branch, foliage; buildings wall, window, roof, door), and synth writes label images
+for them. The trees' recipes are in
 :mod:`datasets_synthetic.tree_recipes`, more cups and buildings in ``more_recipes`` and
 ``city_recipes``; :mod:`ipm.synth` imports them all.
 """
