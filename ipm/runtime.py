@@ -44,7 +44,8 @@ def configure_threads(threads: int, device: str = "cpu", quick_compile: bool = F
     if "intra_op_parallelism_threads" not in flags:  # a word without "--": last
         flags = (f"{flags} --xla_cpu_multi_thread_eigen={'true' if threads > 1 else 'false'} "
                  f"intra_op_parallelism_threads={threads}")
-    os.environ["XLA_FLAGS"] = flags.strip()
+    if not xla_started():
+        os.environ["XLA_FLAGS"] = flags.strip()
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
     if device == "cpu":
@@ -75,6 +76,18 @@ def configure_threads(threads: int, device: str = "cpu", quick_compile: bool = F
         sys.meta_path.insert(0, _AfterImport("jax", lambda module: _start_xla_cpu(_THREADS)))
     _keep_fault_handlers("pycolmap")
     _defer_plotly_viewer()
+
+
+def xla_started() -> bool:
+    """Whether XLA has read ``XLA_FLAGS`` in this process (a JAX backend is up). Flags changed after
+    that do not reach the compiler but still enter the keys of JAX's persistent compilation cache,
+    which would then file programs compiled under one set of flags as if under another: a later
+    process reading them would compute other numbers than one that compiled them itself."""
+    if "jax" not in sys.modules:
+        return False
+    from jax._src import xla_bridge
+
+    return xla_bridge.backends_are_initialized()
 
 
 _THREADS: int | None = None

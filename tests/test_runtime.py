@@ -73,6 +73,19 @@ def test_fits_that_compile_per_case_take_the_quick_code_generator(quick):
     assert METHODS["diff"].compiles and not METHODS["diffsdf"].compiles and not METHODS["occnet"].compiles
 
 
+def test_flags_stay_once_xla_has_read_them():
+    """Once a JAX backend is up, ``configure_threads`` leaves ``XLA_FLAGS`` as XLA read them: a
+    change would not reach the compiler, only the persistent cache's keys (programs compiled under
+    one set of flags filed under another's)."""
+    code = ("import os; from ipm.runtime import configure_threads; configure_threads(1); "
+            "import jax.numpy as jnp; float(jnp.ones(2).sum()); before = os.environ['XLA_FLAGS']; "
+            "configure_threads(2, quick_compile=True); print(before == os.environ['XLA_FLAGS'], "
+            "'fusion_emitters' in before)")
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
+    assert out.split() == ["True", "False"], out
+
+
 def test_open3d_is_imported_without_its_plotly_viewer():
     """After ``configure_threads`` open3d's import leaves dash and plotly out (half its import time);
     its plotly viewer still works when called, importing them then."""
