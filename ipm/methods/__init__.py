@@ -76,7 +76,12 @@ class Method:
         return self.uses_generator or self.learns_generator
 
     def __call__(self, *args, **kwargs) -> dict:
-        return resolve(self.entry)(*args, **kwargs)
+        if not self.compiles:
+            return resolve(self.entry)(*args, **kwargs)
+        from ipm.read_ahead import read_ahead
+
+        with read_ahead(f"{self.name}-{kwargs.get('generator', '')}"):  # the last run's programs, from the start
+            return resolve(self.entry)(*args, **kwargs)
 
     @property
     def prepare(self) -> Callable | None:
