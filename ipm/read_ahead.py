@@ -44,13 +44,13 @@ def _device_ids(devices) -> list[list]:
 class _Reader:
     """The keys of one name: read ahead on a thread, handed to the first call that asks for one."""
 
-    def __init__(self, path: Path, original):
-        self.path, self.original = path, original
+    def __init__(self, path: Path, original, backend, xla_client):
+        self.path, self.original, self.backend, self.xla_client = path, original, backend, xla_client
         self.asked: dict[str, tuple[bytes, list]] = {}  # this run's keys: (options, devices)
         self.ready: dict[str, tuple] = {}  # key -> (executable, compile time, options digest, devices)
         self.loading: dict[str, threading.Event] = {}
         self.lock = threading.Lock()
-        self.queue = self._listed()
+        self.queue = [row for row in self._listed() if row[2] and row[2][0][0] == backend.platform]
         self.stop, self.served = False, 0
         self.thread = threading.Thread(target=self._run, name="ipm-read-ahead", daemon=True)
         if self.queue:
@@ -59,43 +59,34 @@ class _Reader:
     def _listed(self) -> list:
         try:
             return [tuple(row) for row in json.loads(self.path.read_text())]
-        except (OSError, ValueError):
+        except (OSError, ValueError, TypeError):
             return []
 
     def _run(self) -> None:
-        try:
-            from jax._src import xla_bridge
-            from jax._src.lib import xla_client
-
-            backends = {}
-            while not self.stop:
-                with self.lock:
-                    if not self.queue:
-                        return
-                    key, options_hex, devices = self.queue.pop(0)
-                    if key in self.asked or key in self.ready:
-                        continue
-                    done = self.loading[key] = threading.Event()
-                try:
-                    platform = devices[0][0]
-                    if platform not in backends:
-                        backends[platform] = xla_bridge.get_backend(platform)
-                    backend = backends[platform]
-                    by_id = {int(d.id): d for d in backend.devices()}
-                    options = xla_client.CompileOptions.ParseFromString(bytes.fromhex(options_hex))
-                    listed = xla_client.DeviceList(tuple(by_id[i] for _, i in devices))
-                    executable, seconds = self.original(key, options, backend, listed)
-                    if executable is not None:
-                        with self.lock:
-                            self.ready[key] = (executable, seconds, _digest(options), devices)
-                except Exception:  # noqa: BLE001 - a key that does not read back is read by its call
-                    pass
-                finally:
+        """Read the listed keys in turn (no import and no set-up on this thread: a module imported
+        on two threads at once can be seen half made)."""
+        by_id = {int(d.id): d for d in self.backend.devices()}
+        while not self.stop:
+            with self.lock:
+                if not self.queue:
+                    return
+                key, options_hex, devices = self.queue.pop(0)
+                if key in self.asked or key in self.ready:
+                    continue
+                done = self.loading[key] = threading.Event()
+            try:
+                options = self.xla_client.CompileOptions.ParseFromString(bytes.fromhex(options_hex))
+                listed = self.xla_client.DeviceList(tuple(by_id[i] for _, i in devices))
+                executable, seconds = self.original(key, options, self.backend, listed)
+                if executable is not None:
                     with self.lock:
-                        self.loading.pop(key, None)
-                    done.set()
-        except Exception:  # noqa: BLE001 - no reading ahead at all: every call reads its own
-            return
+                        self.ready[key] = (executable, seconds, _digest(options), devices)
+            except Exception:  # noqa: BLE001 - a key that does not read back is read by its call
+                pass
+            finally:
+                with self.lock:
+                    self.loading.pop(key, None)
+                done.set()
 
     def get(self, key, options, backend, devices):
         """``jax._src.compilation_cache.get_executable_and_time``, from what was read ahead where
@@ -154,13 +145,16 @@ def read_ahead(name: str):
     if folder is None or _ACTIVE:
         yield None
         return
-    from jax._src import compilation_cache
+    from jax._src import compilation_cache, xla_bridge
+    from jax._src.lib import xla_client
 
     original = compilation_cache.get_executable_and_time
     if list(inspect.signature(original).parameters) != list(_SIGNATURE):  # another JAX: read as it reads
         yield None
         return
-    reader = _Reader(folder / f"{name}.json", original)
+    backend = xla_bridge.get_backend()  # the backend and the cache made here, so the thread sets up nothing
+    compilation_cache._get_cache(backend)
+    reader = _Reader(folder / f"{name}.json", original, backend, xla_client)
     compilation_cache.get_executable_and_time = reader.get
     _ACTIVE.append(reader)
     try:
