@@ -50,17 +50,25 @@ class _Reader:
         self.ready: dict[str, tuple] = {}  # key -> (executable, compile time, options digest, devices)
         self.loading: dict[str, threading.Event] = {}
         self.lock = threading.Lock()
-        self.queue = [row for row in self._listed() if row[2] and row[2][0][0] == backend.platform]
+        self.queue = [row for row in self._listed() if row[2][0][0] == backend.platform]
         self.stop, self.served = False, 0
         self.thread = threading.Thread(target=self._run, name="ipm-read-ahead", daemon=True)
         if self.queue:
             self.thread.start()
 
     def _listed(self) -> list:
+        """The last run's rows (key, options in hex, [[platform, device id], ...]); a file that does
+        not read as such is no list."""
         try:
-            return [tuple(row) for row in json.loads(self.path.read_text())]
-        except (OSError, ValueError, TypeError):
+            rows = json.loads(self.path.read_text())
+            ok = isinstance(rows, list) and all(
+                isinstance(r, list) and len(r) == 3 and isinstance(r[0], str) and isinstance(r[1], str)
+                and isinstance(r[2], list) and r[2] and all(isinstance(d, list) and len(d) == 2 and
+                                                            isinstance(d[0], str) and isinstance(d[1], int) for d in r[2])
+                for r in rows)
+        except (OSError, ValueError):
             return []
+        return [tuple(r) for r in rows] if ok else []
 
     def _run(self) -> None:
         """Read the listed keys in turn (no import and no set-up on this thread: a module imported

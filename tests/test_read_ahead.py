@@ -56,5 +56,6 @@ def test_programs_read_ahead_are_the_cache_s_own_and_give_the_same_numbers(tmp_p
     listed.write_text(json.dumps(rows))
     third = _run(cache, "wait")
     assert third["served"] == 3 and third["out"] == first["out"]
-    listed.write_text("[[1, 2")
-    assert _run(cache, "go") == {"served": 0, "out": first["out"]}
+    for broken in ("[[1, 2", "[[1, 2]]", '[["k", "00", [["cpu"]]]]'):
+        listed.write_text(broken)
+        assert _run(cache, "go") == {"served": 0, "out": first["out"]}
