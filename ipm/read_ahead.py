@@ -13,7 +13,6 @@ the same to the bit.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import inspect
 import json
 import threading
@@ -33,8 +32,12 @@ def _folder() -> Path | None:
     return Path(root) / "read_ahead" if root else None
 
 
-def _digest(options) -> str:
-    return hashlib.sha256(options.SerializeAsString()).hexdigest()
+def _is_row(row) -> bool:
+    """Whether ``row`` reads as a listed program: [key, options in hex, [[platform, device id], ...]]."""
+    return (isinstance(row, list) and len(row) == 3 and isinstance(row[0], str) and isinstance(row[1], str)
+            and isinstance(row[2], list) and bool(row[2])
+            and all(isinstance(d, list) and len(d) == 2 and isinstance(d[0], str) and isinstance(d[1], int)
+                    for d in row[2]))
 
 
 def _device_ids(devices) -> list[list]:
@@ -47,7 +50,7 @@ class _Reader:
     def __init__(self, path: Path, original, backend, xla_client):
         self.path, self.original, self.backend, self.xla_client = path, original, backend, xla_client
         self.asked: dict[str, tuple[bytes, list]] = {}  # this run's keys: (options, devices)
-        self.ready: dict[str, tuple] = {}  # key -> (executable, compile time, options digest, devices)
+        self.ready: dict[str, tuple] = {}  # key -> (executable, compile time, options, devices)
         self.loading: dict[str, threading.Event] = {}
         self.lock = threading.Lock()
         self.queue = [row for row in self._listed() if row[2][0][0] == backend.platform]
@@ -61,14 +64,9 @@ class _Reader:
         not read as such is no list."""
         try:
             rows = json.loads(self.path.read_text())
-            ok = isinstance(rows, list) and all(
-                isinstance(r, list) and len(r) == 3 and isinstance(r[0], str) and isinstance(r[1], str)
-                and isinstance(r[2], list) and r[2] and all(isinstance(d, list) and len(d) == 2 and
-                                                            isinstance(d[0], str) and isinstance(d[1], int) for d in r[2])
-                for r in rows)
         except (OSError, ValueError):
             return []
-        return [tuple(r) for r in rows] if ok else []
+        return [tuple(r) for r in rows] if isinstance(rows, list) and all(map(_is_row, rows)) else []
 
     def _run(self) -> None:
         """Read the listed keys in turn (no import and no set-up on this thread: a module imported
@@ -83,12 +81,13 @@ class _Reader:
                     continue
                 done = self.loading[key] = threading.Event()
             try:
-                options = self.xla_client.CompileOptions.ParseFromString(bytes.fromhex(options_hex))
+                serialized = bytes.fromhex(options_hex)
+                options = self.xla_client.CompileOptions.ParseFromString(serialized)
                 listed = self.xla_client.DeviceList(tuple(by_id[i] for _, i in devices))
                 executable, seconds = self.original(key, options, self.backend, listed)
                 if executable is not None:
                     with self.lock:
-                        self.ready[key] = (executable, seconds, _digest(options), devices)
+                        self.ready[key] = (executable, seconds, serialized, devices)
             except Exception:  # noqa: BLE001 - a key that does not read back is read by its call
                 pass
             finally:
@@ -115,7 +114,7 @@ class _Reader:
             waiting.wait()
         with self.lock:
             got = self.ready.pop(key, None)
-        if got is None or got[2] != hashlib.sha256(wanted).hexdigest() or got[3] != ids:
+        if got is None or got[2] != wanted or got[3] != ids:
             return None
         self.served += 1
         return got[0], got[1]

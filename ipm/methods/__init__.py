@@ -13,6 +13,7 @@ reads as ``prepared=`` (the GA's gene statistics). Adding one: its module, and a
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 from dataclasses import dataclass
@@ -76,11 +77,13 @@ class Method:
         return self.uses_generator or self.learns_generator
 
     def __call__(self, *args, **kwargs) -> dict:
-        if not self.compiles:
-            return resolve(self.entry)(*args, **kwargs)
-        from ipm.read_ahead import read_ahead
+        if self.compiles:  # the last run's programs read from the start
+            from ipm.read_ahead import read_ahead
 
-        with read_ahead(f"{self.name}-{kwargs.get('generator', '')}"):  # the last run's programs, from the start
+            reading = read_ahead(f"{self.name}-{kwargs.get('generator', '')}")
+        else:
+            reading = contextlib.nullcontext()
+        with reading:
             return resolve(self.entry)(*args, **kwargs)
 
     @property
