@@ -10,7 +10,6 @@ World vertices are ``s * R_y(yaw) R_x(tilt_x) R_z(tilt_z) v + t`` with
 from __future__ import annotations
 
 from contextlib import contextmanager
-from functools import lru_cache
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +17,7 @@ import numpy as np
 
 from ipm.errors import UserError
 from ipm.generators.base import Generator, Mesh, build_mesh
+from ipm.lanes import once
 from ipm.io.views import Views
 from ipm.render.cameras import pixel_ray
 
@@ -224,7 +224,7 @@ class Problem:
         generator with ``shared_positions``, one function for all, reading the discrete values from z)."""
         return self._vertex_fn(None if self.generator.shared_positions else key, lod)
 
-    @lru_cache(maxsize=None)
+    @once
     def _vertex_fn(self, key: tuple | None, lod: int, render: bool = True) -> BoundVertices:
         return _bound(_vertex_program(self.generator, key, lod, self._camera_kind, render), self.constants())
 
@@ -240,7 +240,7 @@ class Problem:
         :meth:`constants` inside a program; None for a known camera."""
         return None if self.camera is None else type(self.camera)
 
-    @lru_cache(maxsize=None)
+    @once
     def group_vertex_fn(self, lod: int, groups: tuple[tuple[int, ...], ...]) -> BoundVertices:
         """For a generator with ``shared_positions``: pure JAX z -> world vertices of every render
         group, flattened (G * 3 V,). Group g keeps the vertices of the solids the object ``z`` has

@@ -258,3 +258,28 @@ def test_the_progress_bar_plans_every_phase_s_moves_on_the_candidates_it_sees(mu
         assert planned_evaluations(problem, profile, mem, {**none, name: [Costly(name, 7)]}, 1) == base + 7 * k, name
     assert planned_evaluations(problem, profile, mem, none, 2) == base + mem.ga_iterations * (
         mem.adam_per_iteration + mem.population)
+
+
+@pytest.mark.slow
+def test_tries_side_by_side_give_the_fit_of_one_after_another(mug_view, monkeypatch):
+    """On two threads the memetic stage's individuals, polish's neighbours and a race's starts run
+    side by side (``ipm.lanes``), with the point, the trace and the render seeds of one thread."""
+    import threading
+
+    import ipm.lanes as lanes
+    import ipm.search.loop as loop
+
+    problem, views = mug_view
+    profile = get_profile("smoke", population=6, nudge_steps=3, refine_res=(32, 48), refine_iterations=(2, 2))
+    on_lanes, run = [], lanes._run
+    monkeypatch.setattr(lanes, "_run", lambda *a: on_lanes.append(threading.current_thread().name) or run(*a))
+    fits = []
+    for n in (1, 2):
+        monkeypatch.setattr(loop, "thread_count", lambda: n)
+        fits.append(reconstruct(Problem(ToyCups(), problem.anchor_t, problem.anchor_s), views, profile, seed=0,
+                                progress=False))
+    (z1, trace1), (z2, trace2) = fits
+    assert np.array_equal(z1, z2)
+    assert trace1.drop(columns="seconds").equals(trace2.drop(columns="seconds"))
+    assert {"memetic", "polish", "nudge"} <= set(trace2["stage"])
+    assert len(on_lanes) > 10 and {name.startswith("lane") for name in on_lanes} >= {True}

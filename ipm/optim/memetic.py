@@ -20,11 +20,13 @@ the ``paper`` profile, ``ipm.profiles``):
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Annotated, Callable
 
 import numpy as np
 
+from ipm.lanes import Lanes, Task
 from ipm.optim.adam import AdamState, adam_init, adam_update
 from ipm.settings import UNIT, Range, Settings, at_least
 
@@ -189,25 +191,35 @@ def make_child(parents: list[Individual], probs: np.ndarray, rng: np.random.Gene
 def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_of: Callable,
             n_shape: int, levels: np.ndarray, profile: MemeticSettings, rng: np.random.Generator,
             on_eval: Callable = lambda ind: None, prepare: Callable = lambda z: z,
-            yaw_free: Callable = lambda z: False) -> list[Individual]:
+            yaw_free: Callable = lambda z: False, side: Lanes | None = None) -> list[Individual]:
     """Run the memetic stage from ``initial``; the last generation, best first (one individual
     per topology key and yaw bin): the first one's ``best_z`` is the answer.
 
     ``prepare(z)`` adjusts each child before its first evaluation (the differentiable path
     rescales it to the targets' silhouette area, as it does for the initial population);
-    ``yaw_free(z)``: the object ``z`` looks the same turned (:func:`merge_bins`).
+    ``yaw_free(z)``: the object ``z`` looks the same turned (:func:`merge_bins`); ``side``: where
+    the individuals' steps run (side by side on its threads, with the results of one after another).
     """
-    def steps(inds: list[Individual], ns) -> None:
-        for ind, n in zip(inds, ns):
-            adam_steps(ind, n, evaluate, clip, profile.reject_ratio, on_eval)
+    side = side or Lanes()
+
+    def steps(inds: list[Individual], ns) -> list[Individual]:
+        def task(ind: Individual, n: int) -> Task:
+            def run() -> Individual:
+                mine = copy.deepcopy(ind)  # the given one stays as it was, should the try run again
+                adam_steps(mine, n, evaluate, clip, profile.reject_ratio, on_eval)
+                return mine
+            return Task(run, {evaluate: max(n, 1 if ind.grad is None else 0)})
+
+        return side.map([task(ind, n) for ind, n in zip(inds, ns)])
 
     pop = list(initial)
     for it in range(profile.ga_iterations):
-        fresh = [ind for ind in pop if ind.grad is None]
-        steps(fresh, [1] * len(fresh))
+        fresh = [k for k, ind in enumerate(pop) if ind.grad is None]
+        for k, ind in zip(fresh, steps([pop[k] for k in fresh], [1] * len(fresh))):
+            pop[k] = ind
         losses = np.array([i.best_loss for i in pop])
         stalls = np.array([i.stall for i in pop])
-        steps(pop, share_budget(profile.adam_per_iteration, log_quality(losses, stalls, it)))
+        pop = steps(pop, share_budget(profile.adam_per_iteration, log_quality(losses, stalls, it)))
         for ind in pop:
             ind.key = key_of(ind.z)
         pop = merge_bins(pop, n_shape, profile.yaw_bins, yaw_free)

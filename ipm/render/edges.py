@@ -9,12 +9,14 @@ The kernels: coverage and its gradient in ``ipm.render.edge_scan``, class masks 
 """
 from __future__ import annotations
 
+import threading
 from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ipm import lanes
 from ipm.render.edge_classes import front_facing, pyramid_loss  # noqa: F401  (pyramid_loss re-exported)
 from ipm.render.edge_programs import (  # noqa: F401  (_silhouette_loss re-exported)
     _class_loss_fn, _class_render_fn, _class_sizes, _face_classes, _faces_key, _loss_fn, _pullback, _render_fn,
@@ -57,6 +59,7 @@ class EdgeRenderer:
         self._blocks: dict = {}
         self._classes: dict = {}  # class key -> each face's class on the device
         self._device: dict = {}  # id -> (a caller's array, its device copy): :meth:`_on_device`
+        self._lock = threading.Lock()
 
     def needed(self, vertices: np.ndarray, faces: np.ndarray, classes: np.ndarray | None = None) -> tuple[int, int]:
         """The spans and (with ``classes``) fragments the mesh (``vertices`` (V, 3), ``faces``
@@ -80,22 +83,23 @@ class EdgeRenderer:
         """The span budget for meshes of ``key`` (with ``classes``, the span and fragment budgets):
         on first sight ``spans``, or what ``vertices`` (a callable giving them) need (:meth:`needed`)
         with :func:`with_headroom`, so that the search rarely outgrows it."""
-        if key not in self._budgets:
+        budgets = lanes.table(self._budgets)  # a try's own copy where tries run side by side
+        if key not in budgets:
             if self.spans:
-                self._budgets[key] = int(self.spans) if classes is None else (int(self.spans), int(self.spans))
-                return self._budgets[key]
+                budgets[key] = int(self.spans) if classes is None else (int(self.spans), int(self.spans))
+                return budgets[key]
             need, frags = self.needed(vertices(), faces, classes)
             spans = _round_up(with_headroom(need, grown=False) + 256, self._small)
-            self._budgets[key] = spans if classes is None else (
+            budgets[key] = spans if classes is None else (
                 spans, _round_up(with_headroom(frags, grown=False) + 256, self._small))
-        return self._budgets[key]
+        return budgets[key]
 
     def _run(self, key, groups: np.ndarray, vertices, run, classes: np.ndarray | None = None, budget_key=None):
         """``run(faces, budget)`` -> (results..., budgets needed per view) with the budget of
         ``budget_key`` (default ``key``; :meth:`_budget`), each grown and run again while the mesh
         needs more than it has; the faces are put on the device once per ``key``."""
         key_b = key if budget_key is None else budget_key
-        budget = self._budget(key_b, vertices, groups, classes)
+        budget = used = self._budget(key_b, vertices, groups, classes)
         if key not in self._faces:  # not setdefault: its default would be copied to the device at every call
             self._faces[key] = jnp.asarray(groups)
         faces = self._faces[key]
@@ -104,10 +108,11 @@ class EdgeRenderer:
             have = np.atleast_1d(budget)
             need = np.asarray(needed).reshape(-1, len(have)).max(0)
             if (need <= have).all():
+                lanes.note(self._budgets, key_b, used, budget)
                 return out
             grown = tuple(_round_up(with_headroom(int(n), grown=True) + 1, self._small) if n > b else int(b)
                           for n, b in zip(need, have))
-            budget = self._budgets[key_b] = grown if classes is not None else grown[0]
+            budget = lanes.table(self._budgets)[key_b] = grown if classes is not None else grown[0]
 
     def _jitter(self, seed: int) -> np.ndarray:
         """Sample-grid jitter (n, H ss + W ss, 2) in [0, 1) for render ``seed``: each view's rows,
@@ -179,11 +184,12 @@ class EdgeRenderer:
     def _on_device(self, array) -> jnp.ndarray:
         """``array`` (float32) on the device, copied once per array object a caller passes again
         and again (a search's target masks, at every step); the last few are kept."""
-        if id(array) not in self._device:
-            if len(self._device) >= 4:
-                self._device.clear()
-            self._device[id(array)] = (array, jnp.asarray(np.asarray(array, np.float32)))  # holds it: ids stay
-        return self._device[id(array)][1]
+        with self._lock:  # tries side by side (``ipm.lanes``) share the copies
+            if id(array) not in self._device:
+                if len(self._device) >= 4:
+                    self._device.clear()
+                self._device[id(array)] = (array, jnp.asarray(np.asarray(array, np.float32)))  # holds it: ids stay
+            return self._device[id(array)][1]
 
     def _class_call(self, vertex_fn, z, faces, targets, jitter, n_vertices: int, highlight: tuple):
         """:meth:`_call` with a class-mask term: the generator's vertices, the render program's loss

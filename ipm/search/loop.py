@@ -16,10 +16,12 @@ import pandas as pd
 
 from ipm.errors import UserError
 from ipm.io.views import Views, resize_masks
+from ipm.lanes import Lanes
 from ipm.optim.memetic import Individual, adam_steps, memetic
 from ipm.problem import Problem
+from ipm.runtime import thread_count
 from ipm.search.moves import PHASES, moves_for
-from ipm.search.objective import Objective
+from ipm.search.objective import Objective, renderer_kind
 from ipm.search.starts import preset_start
 from ipm.search.trial import Candidate, Tracker, Trial, scorer
 from ipm.settings import Range, Settings, at_least
@@ -144,7 +146,19 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
                 start=preset_start) -> tuple[np.ndarray, pd.DataFrame]:
     """Best ``z`` for ``views`` under ``profile`` (``ipm.profiles.DiffProfile``) and the trace (one row
     per evaluation; at the end of each stage its ``iou`` column holds the input-view IoU of the
-    stage's best, :func:`input_iou`). ``start`` makes the memetic stage's first population."""
+    stage's best, :func:`input_iou`). ``start`` makes the memetic stage's first population. With
+    the JAX renderer, independent tries run side by side on the process's threads (``ipm.lanes``:
+    the same result and trace as one after another)."""
+    jax_renderer = renderer_kind(profile.objective.renderer, problem.fov_estimated is True) == "jax"
+    side = Lanes(thread_count() if jax_renderer else 1)
+    try:
+        return _search(problem, views, profile, seed, progress, start, side)
+    finally:
+        side.close()
+
+
+def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, start, side: Lanes):
+    """:func:`reconstruct`, its tries run by ``side``."""
     loop, full = profile.loop, profile.memetic
     learned = getattr(start, "learned", False)
     mem = replace(full, ga_iterations=min(full.ga_iterations, loop.learned_generations)) if learned else full
@@ -163,7 +177,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
         label = move.label or move.name
         track.enter(label, steps.width)
         trial = Trial(problem, steps, score, mem.lr, mem.reject_ratio, views, profile, track.on_eval,
-                      track.recorder(label, score.width), track.extend)
+                      track.recorder(label, score.width), track.extend, side)
         out = []
         for c in cands:
             steps.rewind()  # each candidate's steps draw the same seeds, whatever ran before
@@ -180,7 +194,7 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     def stage(pop: list[Individual], settings) -> list[Individual]:
         track.enter("memetic", objective.width)
         return memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, settings,
-                       rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free)
+                       rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, side=side)
 
     final, added = [], set()
     for held in holds:

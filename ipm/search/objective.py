@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 import jax.numpy as jnp
 import numpy as np
 
+from ipm import lanes
 from ipm.io.views import Views, resize_masks
 from ipm.problem import POSE_NAMES, Problem
 from ipm.render.edges import EdgeRenderer
@@ -66,9 +67,14 @@ def make_renderer(name: str, c2w: np.ndarray, fov_x: float, width: int, height: 
     view is unknown too, ``ipm.photo``, whose focal sweep was; the JAX renderer is not validated
     there on the dev split. With the field of view given, the pitch starts were measured with JAX).
     ``closed``: every mesh is closed, outward-facing solids (the JAX renderer draws front faces only)."""
-    if name == "jax" or (name == "auto" and not mitsuba_tuned):
+    if renderer_kind(name, mitsuba_tuned) == "jax":
         return EdgeRenderer(c2w, fov_x, width, height, spp, cull_back=closed)
     return SilhouetteRenderer(c2w, fov_x, width, height, spp)
+
+
+def renderer_kind(name: str, mitsuba_tuned: bool = False) -> str:
+    """``jax`` or ``mitsuba``: the renderer :func:`make_renderer` makes for ``name``."""
+    return "jax" if name == "jax" or (name == "auto" and not mitsuba_tuned) else "mitsuba"
 
 
 class Objective:
@@ -138,7 +144,11 @@ class Objective:
         return loss + reg, grad + reg_grad
 
     def seeds(self, n: int) -> np.ndarray:
-        """The render seeds of the next ``n`` evaluations, those calls one at a time would draw."""
+        """The render seeds of the next ``n`` evaluations, those calls one at a time would draw (a
+        try run beside others draws those it would draw after the tries before it: ``ipm.lanes``)."""
+        drawn = lanes.draw(self, n)
+        if drawn is not None:
+            return drawn
         self.calls += n
         return np.arange(self.calls - n, self.calls)
 

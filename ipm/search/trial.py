@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from ipm import lanes
 from ipm.optim.memetic import Individual, adam_steps
 from ipm.problem import Problem
 
@@ -49,9 +50,13 @@ class Tracker:
         self.rows.append((stage, res, len(self.rows), origin, loss, best, time.perf_counter() - self.t0))
 
     def on_eval(self, ind: Individual) -> None:
-        """A row for an evaluation of the current stage (at the width its steps render)."""
-        self.best = min(self.best, ind.best_loss)
-        self.row(self.stage, self.res, ind.origin, ind.loss, self.best)
+        """A row for an evaluation of the current stage (at the width its steps render); a try's
+        beside others when the try is kept (``ipm.lanes``)."""
+        lanes.later(self._evaluated, ind.origin, ind.loss, ind.best_loss)
+
+    def _evaluated(self, origin: str, loss: float, best_loss: float) -> None:
+        self.best = min(self.best, best_loss)
+        self.row(self.stage, self.res, origin, loss, self.best)
         self.bar.update(1)
         self.bar.set_postfix(stage=self.stage, res=self.res, best=f"{self.best:.5f}")
 
@@ -62,7 +67,7 @@ class Tracker:
 
     def recorder(self, stage: str, res: int) -> Callable[[str, float], None]:
         """A trace row per candidate a stage scores by name, at the width it scores."""
-        return lambda name, loss: self.row(stage, res, name, loss, min(self.best, loss))
+        return lambda name, loss: lanes.later(lambda: self.row(stage, res, name, loss, min(self.best, loss)))
 
     def enter(self, stage: str, res: int, reset: bool = False) -> None:
         self.stage, self.res = stage, res
@@ -86,8 +91,10 @@ class Trial:
 
     def __init__(self, problem: Problem, steps, score, lr: float, reject_ratio: float, views=None, profile=None,
                  on_eval: Callable = lambda ind: None, record: Callable = lambda name, loss: None,
-                 plan: Callable[[int], None] = lambda evaluations: None):
+                 plan: Callable[[int], None] = lambda evaluations: None, side: lanes.Lanes | None = None):
         self.problem, self.steps, self.score, self.views, self.profile = problem, steps, score, views, profile
+        self.side = side or lanes.Lanes()
+        """Where independent tries run (:meth:`tries`, :meth:`first_lower`): side by side on its threads."""
         self.lr, self.reject_ratio = lr, reject_ratio
         self.on_eval, self.record = on_eval, record
         self.plan = plan
@@ -111,6 +118,21 @@ class Trial:
         self.record(name, loss)
         return cand, loss
 
+    def _task(self, start: np.ndarray, name: str, steps: int, score: Callable,
+              clip: Callable | None = None) -> lanes.Task:
+        """:meth:`tried` as a task: it draws a render seed an Adam step (one for none)."""
+        return lanes.Task(lambda: self.tried(start, name, steps, score, clip), {self.steps: max(steps, 1)})
+
+    def tries(self, tries: list[tuple]) -> list[tuple[np.ndarray, float]]:
+        """:meth:`tried` of each (start, name, steps, score[, clip]), side by side where there are
+        threads, in order: the same points, losses and trace as one after another."""
+        return self.side.map([self._task(*t) for t in tries])
+
+    def first_lower(self, tries: list[tuple], loss: float) -> list[tuple[np.ndarray, float]]:
+        """:meth:`tries` up to the first whose loss is below ``loss`` (included), as if the later
+        ones were never tried."""
+        return self.side.first([self._task(*t) for t in tries], lambda tried: tried[1] < loss)
+
     def rounds(self, pool: list[tuple[str, np.ndarray]], steps: int, rounds: int,
                score: Callable) -> list[tuple[str, np.ndarray, float]]:
         """The starts of ``pool`` (name, point) raced over ``rounds``: each round gives every start left
@@ -118,8 +140,8 @@ class Trial:
         :func:`survivors`) for the next; the last round's (name, point, score), lowest first."""
         tried = []
         for r in range(rounds):
-            tried = [(tag, *self.tried(start, tag if r == 0 else f"{tag} (round {r + 1})", steps, score))
-                     for tag, start in pool]
+            tried = [(tag, *t) for (tag, _), t in zip(pool, self.tries(
+                [(start, tag if r == 0 else f"{tag} (round {r + 1})", steps, score) for tag, start in pool]))]
             tried.sort(key=lambda t: t[2])
             if r < rounds - 1:
                 tried = tried[:survivors(len(tried))]
@@ -131,7 +153,6 @@ class Trial:
         """``z`` (recorded as ``name``) and each of ``starts`` (name, point) given ``steps`` Adam steps
         and compared by ``score``: the lowest start replaces ``z`` only if its loss is lower than
         ``z``'s by more than ``margin`` (a fraction). How sweeps try starts the fit would not reach."""
-        kept = self.tried(z, name, steps, score)
-        tried = [self.tried(alt, alt_name, steps, score) for alt_name, alt in starts]
+        kept, *tried = self.tries([(z, name, steps, score)] + [(alt, alt_name, steps, score) for alt_name, alt in starts])
         best = min(tried, key=lambda start: start[1], default=kept)
         return best[0] if best[1] < kept[1] * (1 - margin) else kept[0]

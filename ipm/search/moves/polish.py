@@ -58,13 +58,12 @@ def polish(trial, z: np.ndarray, settings: PolishSettings, settled=frozenset()) 
         improved, params = False, {p: v for p, v in neighbours(problem, z).items() if p not in settled}
         planned, spent = each * sum(len(v) for v in params.values()), 0
         trial.plan(planned)  # at most the sweep's neighbours; the bar is set right after the sweep
-        for param in params:
-            for name, alt in neighbours(problem, z).get(param, []):
-                cand, loss = trial.tried(alt, name, settings.polish_steps, score)
-                spent += each
-                if loss < best:
-                    z, best, improved = cand, loss, True
-                    break
+        for param in params:  # the first of the parameter's neighbours that lowers the loss, if any
+            tried = trial.first_lower([(alt, name, settings.polish_steps, score)
+                                       for name, alt in neighbours(problem, z).get(param, [])], best)
+            spent += each * len(tried)
+            if tried and tried[-1][1] < best:
+                (z, best), improved = tried[-1], True
         trial.plan(spent - planned)
         if not improved:
             break

@@ -82,7 +82,7 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.nda
             values.append((f"{name}={spec.lower[i] + k:g}", alt))
         kept = range(levels)
         if 0 < settings.decide_kinds < levels:  # every value as it stands first; the best go on
-            tried = [trial.tried(start, tag, settings.decide_steps, score) for tag, start in values]
+            tried = trial.tries([(start, tag, settings.decide_steps, score) for tag, start in values])
             kept = sorted(np.argsort([loss for _, loss in tried], kind="stable")[:settings.decide_kinds])
         pool = []
         for k in kept:
