@@ -137,11 +137,10 @@ class HandleSide(Move):
         alt, loss_alt = trial.tried(mirror, "mirror", steps, score)
         if loss_alt > (1.0 + tol) * loss:
             return cand  # the outline tells the sides apart
-        tried = [("fit", cand.z, loss), ("mirror", alt, loss_alt)]
-        for name, base in (("fit", cand.z), ("mirror", mirror)):
-            for turn in settings.handle_side_turns:
-                tag = f"{name} turned {turn:+g} deg"
-                tried.append((tag, *trial.tried(problem.turned(base, np.radians(turn)), tag, steps, score)))
+        turns = [(f"{name} turned {turn:+g} deg", problem.turned(base, np.radians(turn)))
+                 for name, base in (("fit", cand.z), ("mirror", mirror)) for turn in settings.handle_side_turns]
+        tried = [("fit", cand.z, loss), ("mirror", alt, loss_alt)] + [
+            (tag, *t) for (tag, _), t in zip(turns, trial.tries([(start, tag, steps, score) for tag, start in turns]))]
         lowest = min(t[2] for t in tried)
         ties = [t for t in tried if t[2] <= (1.0 + tol) * lowest]
         if len(ties) == 1:
