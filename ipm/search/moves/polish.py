@@ -58,17 +58,12 @@ def polish(trial, z: np.ndarray, settings: PolishSettings, settled=frozenset()) 
         improved, params = False, {p: v for p, v in neighbours(problem, z).items() if p not in settled}
         planned, spent = each * sum(len(v) for v in params.values()), 0
         trial.plan(planned)  # at most the sweep's neighbours; the bar is set right after the sweep
-        order, k = list(params), 0
-        while k < len(order):  # from parameter k on, the current point's neighbours, up to the first lower
-            current = neighbours(problem, z)
-            tries = [(i, (alt, name, settings.polish_steps, score))
-                     for i in range(k, len(order)) for name, alt in current.get(order[i], [])]
-            tried = trial.first_lower([t for _, t in tries], best)
+        for param in params:  # the first of the parameter's neighbours that lowers the loss, if any
+            tried = trial.first_lower([(alt, name, settings.polish_steps, score)
+                                       for name, alt in neighbours(problem, z).get(param, [])], best)
             spent += each * len(tried)
-            if not tried or tried[-1][1] >= best:
-                break
-            (z, best), improved = tried[-1], True
-            k = tries[len(tried) - 1][0] + 1  # the parameter after the one that moved, from the new point
+            if tried and tried[-1][1] < best:
+                (z, best), improved = tried[-1], True
         trial.plan(spent - planned)
         if not improved:
             break
