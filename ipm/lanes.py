@@ -141,6 +141,7 @@ class Lanes:
         return out
 
     def close(self) -> None:
+        """Stop the threads (a later call starts them again)."""
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
