@@ -9,7 +9,7 @@ own copy of every budget table it reads (:func:`table`), its trace rows held bac
 The tries are then taken in order: one whose budgets were those the tries before it leave behind
 is kept as it ran and its rows written; any other runs again, alone, on the budgets as they stand
 (a budget grows a few times a fit). XLA runs two programs at once on two threads, each program's
-numbers its own whatever runs beside it (docs/design.md, "Tries side by side").
+numbers its own whatever runs beside it (``docs/design``, "Tries side by side").
 """
 from __future__ import annotations
 

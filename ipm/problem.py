@@ -17,8 +17,8 @@ import numpy as np
 
 from ipm.errors import UserError
 from ipm.generators.base import Generator, Mesh, build_mesh
-from ipm.lanes import once
 from ipm.io.views import Views
+from ipm.lanes import once
 from ipm.render.cameras import pixel_ray
 
 POSE_NAMES = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
