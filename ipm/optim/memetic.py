@@ -99,11 +99,17 @@ def share_budget(budget: int, logq: np.ndarray) -> np.ndarray:
     return n
 
 
+def step_evaluations(n: int, fresh: bool) -> int:
+    """The evaluations :func:`adam_steps` spends on ``n`` steps: one each, and one for the starting
+    point of an individual never evaluated (``fresh``), even when ``n`` is 0."""
+    return max(n, 1 if fresh else 0)
+
+
 def adam_steps(ind: Individual, n: int, evaluate: Callable, clip: Callable, reject_ratio: float,
                on_eval: Callable) -> None:
-    """``n`` Adam steps on ``ind`` with step rejection (each step costs one evaluation; an individual
-    never evaluated spends its first on its starting point, and gets it even when ``n`` is 0)."""
-    for _ in range(max(n, 1 if ind.grad is None else 0)):
+    """``n`` Adam steps on ``ind`` with step rejection (:func:`step_evaluations` evaluations: an
+    individual never evaluated spends its first on its starting point)."""
+    for _ in range(step_evaluations(n, ind.grad is None)):
         z, state = _propose(ind, clip)
         loss, grad = evaluate(z)
         _accept(ind, z, state, loss, grad, reject_ratio)
@@ -208,7 +214,7 @@ def memetic(initial: list[Individual], evaluate: Callable, clip: Callable, key_o
                 mine = copy.deepcopy(ind)  # the given one stays as it was, should the try run again
                 adam_steps(mine, n, evaluate, clip, profile.reject_ratio, on_eval)
                 return mine
-            return Task(run, {evaluate: max(n, 1 if ind.grad is None else 0)})
+            return Task(run, {evaluate: step_evaluations(n, ind.grad is None)})
 
         return side.map([task(ind, n) for ind, n in zip(inds, ns)])
 

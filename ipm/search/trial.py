@@ -10,7 +10,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from ipm import lanes
-from ipm.optim.memetic import Individual, adam_steps
+from ipm.optim.memetic import Individual, adam_steps, step_evaluations
 from ipm.problem import Problem
 
 TRACE_COLUMNS = ["stage", "res", "eval", "origin", "loss", "best", "seconds"]
@@ -120,8 +120,9 @@ class Trial:
 
     def _task(self, start: np.ndarray, name: str, steps: int, score: Callable,
               clip: Callable | None = None) -> lanes.Task:
-        """:meth:`tried` as a task: it draws a render seed an Adam step (one for none)."""
-        return lanes.Task(lambda: self.tried(start, name, steps, score, clip), {self.steps: max(steps, 1)})
+        """:meth:`tried` as a task: it draws a render seed an evaluation of its fresh individual's steps."""
+        return lanes.Task(lambda: self.tried(start, name, steps, score, clip),
+                          {self.steps: step_evaluations(steps, fresh=True)})
 
     def tries(self, tries: list[tuple]) -> list[tuple[np.ndarray, float]]:
         """:meth:`tried` of each (start, name, steps, score[, clip]), side by side where there are
