@@ -23,11 +23,12 @@ _LLVM_CANDIDATES = (
 )
 
 
-QUICK_COMPILE = "--xla_cpu_use_fusion_emitters=false"
-"""XLA's older CPU code generator for fusions: a building's generator pullback compiles in half the
-time; the networks' programs (diffSDF-style's, the occupancy network's) run up to a third longer
-with it; float results differ from the default's in the last bits (docs/decisions.md, 'Compile
-flag')."""
+QUICK_COMPILE = "--xla_cpu_use_fusion_emitters=false --xla_cpu_experimental_ynn_fusion_type="
+"""XLA's older CPU code generator for fusions (a building's generator pullback compiles in half the
+time) and no YNNPACK library fusions (the renderer's small dots and reductions over every fragment
+cost more in YNNPACK's calls than inline; a fit no longer depends on its thread count); the
+networks' programs (diffSDF-style's, the occupancy network's) run up to a third longer; float
+results differ from the default's in the last bits (docs/decisions.md, 'Compile flag')."""
 
 
 def configure_threads(threads: int, device: str = "cpu", quick_compile: bool = False) -> None:
