@@ -65,6 +65,9 @@ def test_fits_that_compile_per_case_take_the_quick_code_generator(quick):
     words = flags.split()
     read = words[:next((i for i, w in enumerate(words) if not w.startswith("--")), len(words))]  # what XLA reads
     assert ("--xla_cpu_use_fusion_emitters=false" in read) == quick and "intra_op_parallelism_threads=1" in words
+    from ipm.runtime import QUICK_COMPILE
+
+    assert all((w in read) == quick for w in QUICK_COMPILE.split())  # every quick flag where XLA reads it
     chosen = {**env, "XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
     flags = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=chosen, check=True).stdout
     assert "fusion_emitters=false" not in flags
