@@ -147,9 +147,12 @@ def read_ahead(name: str):
     """Within the block, the programs the last run of ``name`` read from JAX's persistent cache
     are read ahead on a thread, and this run's are listed for the next (see the module); the block
     gets the reader (``served``: programs it handed over). Nothing (None) where the cache is off,
-    or inside another such block."""
+    inside another such block, or for a process given one thread (``ipm.runtime.thread_count``:
+    the reading thread would be a second core busy)."""
+    from ipm.runtime import thread_count
+
     folder = _folder()
-    if folder is None or _ACTIVE:
+    if folder is None or _ACTIVE or thread_count() < 2:
         yield None
         return
     from jax._src import compilation_cache, xla_bridge

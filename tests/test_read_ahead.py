@@ -12,7 +12,7 @@ RUN = """
 import json, sys
 import numpy as np
 from ipm.runtime import configure_threads
-configure_threads(1)
+configure_threads(int(sys.argv[2]))
 import jax, jax.numpy as jnp
 from ipm.read_ahead import read_ahead
 
@@ -25,11 +25,11 @@ print(json.dumps({"served": None if reader is None else reader.served, "out": [o
 """
 
 
-def _run(cache, mode: str) -> dict:
+def _run(cache, mode: str, threads: int = 2) -> dict:
     env = {**os.environ, "IPM_JAX_CACHE": str(cache), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
     for name in ("JAX_COMPILATION_CACHE_DIR", "JAX_COMPILATION_CACHE_MAX_SIZE"):
         env.pop(name, None)
-    done = subprocess.run([sys.executable, "-c", RUN, mode], capture_output=True, text=True, env=env)
+    done = subprocess.run([sys.executable, "-c", RUN, mode, str(threads)], capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout.splitlines()[-1])
 
@@ -38,7 +38,8 @@ def _run(cache, mode: str) -> dict:
 def test_programs_read_ahead_are_the_cache_s_own_and_give_the_same_numbers(tmp_path):
     """A run lists the programs it read; the next run of the name is handed them from the reading
     thread, with the same results to the bit as without the cache; a listed program whose options
-    differ from its call's is read by the call itself; an unreadable list is no list."""
+    differ from its call's is read by the call itself; an unreadable list is no list; a run given one
+    thread reads nothing ahead (its one core busy)."""
     cache = tmp_path / "jax"
     first = _run(cache, "wait")
     assert first["served"] == 0
@@ -47,6 +48,7 @@ def test_programs_read_ahead_are_the_cache_s_own_and_give_the_same_numbers(tmp_p
     assert len(rows) == 4
     second = _run(cache, "wait")
     assert second["served"] == 4 and second["out"] == first["out"]
+    assert _run(cache, "wait", threads=1) == {"served": None, "out": first["out"]}
     assert _run("off", "wait") == {"served": None, "out": first["out"]}
     from jax._src.lib import xla_client
 
