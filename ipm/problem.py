@@ -288,10 +288,12 @@ class Problem:
 
     def to_world(self, z: np.ndarray):
         """The map of object-frame points (k, 3) to the world at ``z``'s pose (numpy); with an
-        unknown camera, the render camera's world (where ``views.c2w`` sees them)."""
-        world = _maps(self.generator, None, self._camera_kind, True)[1]
+        unknown camera, the render camera's world (where ``views.c2w`` sees them). The pose is
+        worked out once, so each call of the map is a few operations."""
+        world, pose = _world_maps(self.n_shape, self._camera_kind, True)
         zj, c = jnp.asarray(z, jnp.float32), jnp.asarray(self.constants())
-        return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj, c), np.float64)
+        posed = pose(zj, c)
+        return lambda v: np.asarray(world(jnp.asarray(v, jnp.float32), zj, c, posed), np.float64)
 
     def decode(self, z: np.ndarray) -> dict:
         """Parameters by name and the pose in world terms (for params.json)."""
@@ -403,13 +405,29 @@ def _maps(gen: Generator, key: tuple | None, camera, render: bool):
         x = lo + jnp.clip(z[:n], 0.0, 1.0) * span
         return jnp.where(discrete, jnp.round(x) if key is None else disc_values, x)
 
-    def world(v, z, c):
+    return shape_x, _world_maps(n, camera, render)[0]
+
+
+def _world_maps(n: int, camera, render: bool):
+    """:func:`_maps`' ``world(v, z, constants, posed=None)`` for ``n`` shape genes, and
+    ``pose(z, constants)``, the ``posed`` that ``world`` otherwise works out on each call (traced,
+    the same operations in the same order as ever, so the compiled programs stay those cached)."""
+
+    def placed(z, c):
         p = z[n:]
-        t, s = _placement(p, c, camera, jnp)
-        out = s * v @ _rotation(p[0], p[1], p[2]).T + t
+        return (p, *_placement(p, c, camera, jnp))
+
+    def pose(z, c):
+        p, t, s = placed(z, c)
+        return p, t, s, _rotation(p[0], p[1], p[2])
+
+    def world(v, z, c, posed=None):
+        p, t, s = placed(z, c) if posed is None else posed[:3]
+        scaled = s * v
+        out = scaled @ (_rotation(p[0], p[1], p[2]) if posed is None else posed[3]).T + t
         return camera.of(c[4:]).to_render(out, p[len(POSE_NAMES):]) if camera is not None and render else out
 
-    return shape_x, world
+    return world, pose
 
 
 def _placement(p, c, camera, xp=np):

@@ -300,6 +300,30 @@ def test_holding_closes_the_bounds_and_gives_them_back():
     np.testing.assert_array_equal(problem.upper, upper)
 
 
+@pytest.mark.parametrize("unknown", [False, True])
+def test_to_world_maps_points_as_the_vertex_program_does(unknown, rng):
+    """``Problem.to_world`` works the pose out once per map; each call equals, to the bit, the map
+    that works it out again, and the compiled vertex program places the generator's vertices there."""
+    from ipm.generators import get_generator
+    from ipm.problem import Problem, _world_maps
+
+    cam = UnknownCamera(pitch0=0.5, fov0=np.radians(50.0), fov_known=False, foot=(32.0, 60.0, 64, 64))
+    problem = Problem(get_generator("dishes"), np.array([0.0, 0.0, -3.0]), 1.0, camera=cam if unknown else None)
+    gen = problem.generator
+    z = problem.initial_z(gen.spec.to_unit(gen.presets["mug"]), 0.7)
+    z[problem.n_shape + 1:] += rng.uniform(-0.05, 0.05, len(z) - problem.n_shape - 1)  # tilts, moves, camera
+    z = problem.clip(z)
+    world, pose = _world_maps(problem.n_shape, problem._camera_kind, True)
+    zj, c, points = jnp.asarray(z, jnp.float32), jnp.asarray(problem.constants()), rng.normal(size=(5, 3))
+    for v in (points[:1], points):
+        vj = jnp.asarray(v, jnp.float32)
+        np.testing.assert_array_equal(problem.to_world(z)(v), np.asarray(world(vj, zj, c, pose(zj, c)), np.float64))
+        np.testing.assert_array_equal(problem.to_world(z)(v), np.asarray(world(vj, zj, c), np.float64))
+    x = gen.spec.from_unit(z[:problem.n_shape])
+    placed = np.asarray(problem.vertex_fn(problem.key(z), 0)(z)).reshape(-1, 3)
+    np.testing.assert_allclose(problem.to_world(z)(gen.mesh(x, 0).vertices), placed, atol=1e-5)
+
+
 @pytest.mark.parametrize("genes", [(0.2, 0.0, 0.0), (0.7, 0.1, 0.3), (0.45, -0.2, -0.4)])
 def test_the_object_rides_on_the_foot_ray(genes):
     """Whatever the camera's genes, the ground point under the object lies on the mask's foot
