@@ -20,22 +20,25 @@ from pathlib import Path
 
 import numpy as np
 
+from ipm.generators.buildings.table import L_PLAN, RECTANGLE, T_PLAN, U_PLAN
+
 SHARE_MAIN = 0.6
 """The main wing's share of the extent's depth where the plan has back wings (the rest theirs)."""
 SHARE_ANNEX = 0.25
 """The annex's share of the extent's width."""
 ANNEX_DEPTH = 0.6
 """The annex's width across it as a share of the main wing's depth."""
-BACK_WIDTH = {1: 0.45, 2: 0.45, 3: 0.3}
-"""A back wing's width as a share of the main wing's, by plan (L, T; each of a U's two)."""
+BACK_WIDTH = {RECTANGLE: 0.45, L_PLAN: 0.45, T_PLAN: 0.45, U_PLAN: 0.3}
+"""A back wing's width as a share of the main wing's, by plan (each of a U's two; a rectangle's unused)."""
 
 
 def extent(p: dict) -> tuple[float, float, float, float]:
     """The object-frame footprint (x0, x1, z0, z1) of a buildings parameter set: the main wing,
-    the back wings its plan has (towards -z) and the annex (towards +x)."""
+    the back wings its plan has (towards -z) and the annex (towards +x), as the generator lays them
+    (``ipm.generators.buildings.footprint.wing_frame``)."""
     hx, hz = p["width"] / 2, p["depth"] / 2
     plan, annex = int(round(p["template"])), int(round(p["annex"]))
-    back = max([p["wing1_length"]] * (plan >= 1) + [p["wing2_length"]] * (plan == 3) + [0.0])
+    back = max([p["wing1_length"]] * (plan >= L_PLAN) + [p["wing2_length"]] * (plan == U_PLAN) + [0.0])
     return -hx, hx + (p["wing3_length"] if annex else 0.0), -hz - back, hz
 
 
@@ -47,10 +50,10 @@ def laid(p: dict, plan: int, annex: int) -> tuple[dict, np.ndarray]:
     width, depth = x1 - x0, z1 - z0
     q = dict(p, template=plan, annex=annex)
     q["width"] = (1 - SHARE_ANNEX) * width if annex else width
-    q["depth"] = SHARE_MAIN * depth if plan else depth
+    q["depth"] = SHARE_MAIN * depth if plan != RECTANGLE else depth
     for k in (1, 2):
         q[f"wing{k}_length"] = (1 - SHARE_MAIN) * depth
-        q[f"wing{k}_width"] = BACK_WIDTH.get(plan, 0.45) * q["width"]
+        q[f"wing{k}_width"] = BACK_WIDTH[plan] * q["width"]
         q[f"wing{k}_shift"] = 0.0
     q["wing3_length"], q["wing3_width"], q["wing3_shift"] = SHARE_ANNEX * width, ANNEX_DEPTH * q["depth"], 0.0
     for k in (1, 2, 3):
