@@ -3,10 +3,9 @@
 
 For a workflow run's fit (``ROOT/results/reconstruct/diff_1v/CASE/s0``) every other plan
 (rectangle, L, T, U, each with and without the annex) is laid over the extent the fit covers
-(the plan move's starts, ``ipm.search.moves.plan.laid_starts``); each, and the fit itself, gets
-``--steps`` Adam steps at 128 px, and all are scored at 256 px over two fixed render seeds, with
-the input view's IoU and the 64-view world IoU (128 px) of the fit and of the best alternative.
-Prints one line a case.
+(:func:`laid`); each, and the fit itself, gets ``--steps`` Adam steps at 128 px, and all are scored
+at 256 px over two fixed render seeds, with the input view's IoU and the 64-view world IoU (128 px)
+of the fit and of the best alternative. Prints one line a case.
 
     .venv/bin/python bench/plan_alternatives.py ROOT CASE [--seed 0] [--steps 90]
 
@@ -20,6 +19,48 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from ipm.generators.buildings.table import L_PLAN, RECTANGLE, T_PLAN, U_PLAN
+
+SHARE_MAIN = 0.6
+"""The main wing's share of the extent's depth where the plan has back wings (the rest theirs)."""
+SHARE_ANNEX = 0.25
+"""The annex's share of the extent's width."""
+ANNEX_DEPTH = 0.6
+"""The annex's width across it as a share of the main wing's depth."""
+BACK_WIDTH = {RECTANGLE: 0.45, L_PLAN: 0.45, T_PLAN: 0.45, U_PLAN: 0.3}
+"""A back wing's width as a share of the main wing's, by plan (each of a U's two; a rectangle's unused)."""
+
+
+def extent(p: dict) -> tuple[float, float, float, float]:
+    """The object-frame footprint (x0, x1, z0, z1) of a buildings parameter set: the main wing,
+    the back wings its plan has (towards -z) and the annex (towards +x), as the generator lays them
+    (``ipm.generators.buildings.footprint.wing_frame``)."""
+    hx, hz = p["width"] / 2, p["depth"] / 2
+    plan, annex = int(round(p["template"])), int(round(p["annex"]))
+    back = max([p["wing1_length"]] * (plan >= L_PLAN) + [p["wing2_length"]] * (plan == U_PLAN) + [0.0])
+    return -hx, hx + (p["wing3_length"] if annex else 0.0), -hz - back, hz
+
+
+def laid(p: dict, plan: int, annex: int) -> tuple[dict, np.ndarray]:
+    """``p`` with plan ``plan`` and annex ``annex`` laid over its extent (the shares above; every
+    wing at the main wing's storeys and roof kind), and the object-frame move (3,) that puts the
+    new extent where the old one was (before the generator's bounds clip it)."""
+    x0, x1, z0, z1 = extent(p)
+    width, depth = x1 - x0, z1 - z0
+    q = dict(p, template=plan, annex=annex)
+    q["width"] = (1 - SHARE_ANNEX) * width if annex else width
+    q["depth"] = SHARE_MAIN * depth if plan != RECTANGLE else depth
+    for k in (1, 2):
+        q[f"wing{k}_length"] = (1 - SHARE_MAIN) * depth
+        q[f"wing{k}_width"] = BACK_WIDTH[plan] * q["width"]
+        q[f"wing{k}_shift"] = 0.0
+    q["wing3_length"], q["wing3_width"], q["wing3_shift"] = SHARE_ANNEX * width, ANNEX_DEPTH * q["depth"], 0.0
+    for k in (1, 2, 3):
+        q[f"wing{k}_floors"], q[f"wing{k}_roof"] = p["floors"], p["roof_type"]
+        q[f"wing{k}_roof_height"] = 0.8 * p["roof_height"]
+    n0, n1, m0, m1 = extent(q)
+    return q, np.array([(x0 + x1 - n0 - n1) / 2, 0.0, (z0 + z1 - m0 - m1) / 2])
 
 
 def fitted_z(problem, fit: dict) -> np.ndarray:
@@ -43,13 +84,13 @@ def main() -> None:
     import trimesh
 
     from ipm.generators import get_generator
+    from ipm.generators.buildings.table import PLANS
     from ipm.io.views import load_views
     from ipm.metrics.silhouette import silhouette_iou
     from ipm.optim.memetic import Individual, adam_steps
     from ipm.problem import Problem
     from ipm.profiles import get_profile
     from ipm.search.loop import input_iou
-    from ipm.search.moves.plan import laid_starts
     from ipm.search.objective import Objective
     from ipm.search.trial import scorer
 
@@ -58,17 +99,26 @@ def main() -> None:
     views = load_views(root / "results" / "synth" / case / "hemi1" / "transforms.json")
     problem = Problem.for_views(gen, views, max_tilt=prof.loop.max_tilt)
     fit = json.loads((root / "results" / "reconstruct" / "diff_1v" / case / f"s{args.seed}" / "params.json").read_text())
-    z = fitted_z(problem, fit)
+    z, spec, n = fitted_z(problem, fit), gen.spec, problem.n_shape
     lod = max(prof.loop.refine_lod, gen.min_fit_lod)
     steps, score = Objective(problem, views, 128, lod, prof.objective), scorer(
         Objective(problem, views, 256, lod, prof.objective), (10_005, 10_006))
+    own = (int(round(fit["params"]["template"])), int(round(fit["params"]["annex"])))
     rows = []
-    for name, start in [("plan as fitted", z)] + laid_starts(problem, z):
-        ind = Individual(start, problem.key(start), "plan", lr=prof.memetic.lr * 0.4)
-        adam_steps(ind, args.steps, steps, problem.clip, prof.memetic.reject_ratio, lambda _: None)
-        best = ind.z if ind.best_z is None else ind.best_z
-        rows.append({"plan": name.removeprefix("plan "), "own": start is z, "loss": score(best),
-                     "input_iou": input_iou(problem, views, best, lod), "z": best})
+    for plan in range(len(PLANS)):
+        for annex in (0, 1):
+            start = z.copy()
+            if (plan, annex) != own:
+                q, move = laid(fit["params"], plan, annex)
+                start[:n] = spec.to_unit(spec.clip(spec.from_dict(q)))
+                ends = problem.to_world(start)(np.stack([np.zeros(3), move]))
+                start[n + 3:n + 6] += (ends[1] - ends[0]) / problem.anchor_s
+                start = problem.clip(start)
+            ind = Individual(start, problem.key(start), "plan", lr=prof.memetic.lr * 0.4)
+            adam_steps(ind, args.steps, steps, problem.clip, prof.memetic.reject_ratio, lambda _: None)
+            best = ind.z if ind.best_z is None else ind.best_z
+            rows.append({"plan": PLANS[plan] + (" + annex" if annex else ""), "own": (plan, annex) == own,
+                         "loss": score(best), "input_iou": input_iou(problem, views, best, lod), "z": best})
     reference = trimesh.load(root / "results" / "synth" / case / "reference.ply", force="mesh")
 
     def world_iou(zz):

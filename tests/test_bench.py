@@ -195,3 +195,23 @@ def test_paired_compares_a_tagged_row_with_its_twin_by_case_and_seed(tmp_path, c
     assert paired.main([str(path), "--pair", "diff_1v", "diff_1v_maskedgep2px"]) == 2
     err = capsys.readouterr().err
     assert "no rows ngp_16v" in err and "share no case and seed" in err
+
+
+def test_plan_alternatives_lay_every_plan_over_the_fit_s_extent(rng):
+    """Each plan laid over a building's footprint, moved by the offset it returns, covers the same
+    extent, and its wings are switched on as the plan and the annex say."""
+    from ipm.generators import get_generator
+
+    bench = _script("plan_alternatives")
+    gen = get_generator("buildings")
+    for _ in range(5):
+        p = gen.spec.as_dict(gen.sample(rng))
+        x0, x1, z0, z1 = bench.extent(p)
+        for plan in range(4):
+            for annex in (0, 1):
+                q, move = bench.laid(p, plan, annex)
+                assert (q["template"], q["annex"]) == (plan, annex) and move[1] == 0.0
+                n0, n1, m0, m1 = bench.extent(q)
+                np.testing.assert_allclose([n0 + move[0], n1 + move[0], m0 + move[2], m1 + move[2]], [x0, x1, z0, z1],
+                                           atol=1e-12)
+                assert n1 - n0 == pytest.approx(x1 - x0) and m1 - m0 == pytest.approx(z1 - z0)

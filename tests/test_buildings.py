@@ -112,28 +112,3 @@ def test_facade_jacobian_matches_central_differences(gen):
         fd = central_difference(f, x, i, 1e-3 * span[i])
         assert np.abs(fd).max() > 0.1, name  # the parameter moves something at this level
         assert np.abs(jac[..., i] - fd).max() < 2e-2 * np.abs(fd).max(), name
-
-
-def test_every_other_plan_is_laid_over_the_building_s_extent(gen, rng):
-    """``plan_variants``: the seven other plans (with and without the annex), each moved by its offset
-    covering the extent the building covers, its wings switched on as the plan and the annex say."""
-    from ipm.generators.buildings.plans import extent
-
-    sizes, checked = ("width", "depth", "wing1_length", "wing2_length", "wing3_length"), 0
-    for _ in range(5):
-        x = gen.sample(rng)
-        p = gen.spec.as_dict(x)
-        variants = gen.plan_variants(x)
-        plans = {(gen.spec.as_dict(v)["template"], gen.spec.as_dict(v)["annex"]) for _, v, _ in variants}
-        assert len(variants) == 7 == len(plans) and (p["template"], p["annex"]) not in plans
-        x0, x1, z0, z1 = extent(p)
-        for name, v, move in variants:
-            q = gen.spec.as_dict(v)
-            n0, n1, m0, m1 = extent(q)
-            assert move[1] == 0.0 and gen.occam_parts(v) == 1 + (q["template"] >= 1) + (q["template"] == 3) + q["annex"]
-            lo, hi = (dict(zip(gen.spec.names, b)) for b in (gen.spec.lower, gen.spec.upper))
-            if all(lo[k] < q[k] < hi[k] for k in sizes):  # the bounds did not clip the layout
-                np.testing.assert_allclose([n0 + move[0], n1 + move[0], m0 + move[2], m1 + move[2]],
-                                           [x0, x1, z0, z1], atol=1e-9)
-                checked += 1
-    assert checked >= 10

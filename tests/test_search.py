@@ -283,21 +283,3 @@ def test_tries_side_by_side_give_the_fit_of_one_after_another(mug_view, monkeypa
     assert trace1.drop(columns="seconds").equals(trace2.drop(columns="seconds"))
     assert {"memetic", "polish", "nudge"} <= set(trace2["stage"])
     assert len(on_lanes) > 10 and {name.startswith("lane") for name in on_lanes} >= {True}
-
-
-def test_a_race_that_keeps_its_point_untouched_gives_it_back_as_it_was(mug_view):
-    """``Trial.race`` with ``untouched``: where no start beats the point by the margin, the point
-    itself comes back (its steps only measured it); without, the point after its steps."""
-    from ipm.search.objective import Objective
-    from ipm.search.trial import Trial
-
-    problem, views = mug_view
-    profile = get_profile("smoke")
-    objective = Objective(problem, views, 32, 0, profile.objective)
-    trial = Trial(problem, objective, objective, profile.memetic.lr, profile.memetic.reject_ratio)
-    z = problem.initial_z(problem.spec.to_unit(problem.generator.presets["mug"]), 0.9)
-    turned = problem.clip(z + np.eye(len(z))[problem.n_shape] * 0.2)
-    kept = trial.race(z, "kept", [("turned", turned)], 3, 1.0, trial.scorer((1, 2)), untouched=True)
-    stepped = trial.race(z, "kept", [("turned", turned)], 3, 1.0, trial.scorer((1, 2)))
-    np.testing.assert_array_equal(kept, z)
-    assert not np.array_equal(stepped, z)

@@ -150,11 +150,10 @@ class Trial:
         return tried
 
     def race(self, z: np.ndarray, name: str, starts: list[tuple[str, np.ndarray]], steps: int, margin: float,
-             score: Callable, untouched: bool = False) -> np.ndarray:
+             score: Callable) -> np.ndarray:
         """``z`` (recorded as ``name``) and each of ``starts`` (name, point) given ``steps`` Adam steps
         and compared by ``score``: the lowest start replaces ``z`` only if its loss is lower than
-        ``z``'s by more than ``margin`` (a fraction). How sweeps try starts the fit would not reach.
-        With ``untouched``, a ``z`` that wins comes back as it was (its steps only measured it)."""
+        ``z``'s by more than ``margin`` (a fraction). How sweeps try starts the fit would not reach."""
         kept, *tried = self.tries([(z, name, steps, score)] + [(alt, alt_name, steps, score) for alt_name, alt in starts])
         best = min(tried, key=lambda start: start[1], default=kept)
-        return best[0] if best[1] < kept[1] * (1 - margin) else z if untouched else kept[0]
+        return best[0] if best[1] < kept[1] * (1 - margin) else kept[0]

@@ -33,7 +33,6 @@ from ipm.generators.buildings.facades import FACADES, facade_boxes
 from ipm.generators.buildings.footprint import core_solids, cornice_and_balconies, wing_solids
 from ipm.generators.buildings.roofs import roof_solids
 from ipm.generators.buildings.charts import charts
-from ipm.generators.buildings.plans import laid, plan_name
 from ipm.generators.buildings.solids import TEMPLATES, Solids
 from ipm.generators.buildings.table import (BALCONIES, DISCRETE, DOOR, FLAT, FRAMES, GABLE, GAMBREL, HALF_HIP, HIP,
                                             L_PLAN, MANSARD, PARTS, RECTANGLE, ROOF, ROOF_KINDS, ROOF_WEIGHTS,
@@ -69,9 +68,9 @@ class Buildings(Generator):
     """The chimney, switched on and mid-sized, at nine places on the roof (``ipm.search.moves.place``)."""
     footprint = ("width", "depth")
     """The extent along the object's x and z axes (``ipm.search.moves.sight``)."""
-    moves = ("read", "polish", "recentre", "plan", "roof", "sight", "place", "read again")
-    """Counts read off the window masks, polish, re-centring, the other plans laid over the fit, the
-    roof race, the line-of-sight and the chimney sweeps (``ipm.search.moves``)."""
+    moves = ("read", "polish", "recentre", "roof", "sight", "place", "read again")
+    """Counts read off the window masks, polish, re-centring, the roof race, the line-of-sight and the
+    chimney sweeps (``ipm.search.moves``)."""
     ratios = ("side_window_scale", "ground_window_scale", "hip_ratio", "knee_height", "knee_run", "ridge_offset",
               "balcony_width", "chimney_x", "chimney_z")
     counts = ("floors", "windows_front", "windows_back", "windows_left", "windows_right")
@@ -93,20 +92,6 @@ class Buildings(Generator):
     def occam_parts(self, x) -> int:
         """The main wing and every wing the plan and the annex switch on."""
         return 1 + len(self._structure(self.topology_key(x))["wings"])
-
-    def plan_variants(self, x):
-        """Every other plan (rectangle, L, T, U, with and without the annex) laid over the extent
-        ``x`` covers (``plans.laid``): (name, parameters, object-frame move that keeps the extent's
-        middle where it was), in the plans' order."""
-        p = self.spec.as_dict(x)
-        own = (int(round(p["template"])), int(round(p["annex"])))
-        out = []
-        for plan in range(4):
-            for annex in (0, 1):
-                if (plan, annex) != own:
-                    q, move = laid(p, plan, annex)
-                    out.append((plan_name(plan, annex), self.spec.clip(self.spec.from_dict(q, base=x)), move))
-        return out
 
     def change_count(self, x, name, value):
         """A storey more or less keeps the walls' height (the floor height takes up the change,
