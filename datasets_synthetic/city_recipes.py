@@ -183,7 +183,8 @@ def l_farmhouse(width=1.4, depth=0.7, floors=2, storey=0.31, roof_height=0.36, w
     """An L-shaped farmhouse: a main block under a gable roof along x and, flush with its end at
     ``wing_at`` (-1 left, +1 right), a one-storey wing ``wing_storey`` high going out from its front
     (``wing_side`` +1) or back (-1) under a lower gable along z whose ridge runs into the main roof;
-    windows on every wall, a door in the main front (boxes and convex hulls; no generator code)."""
+    windows on every wall, a door in the wall the wing goes out from, beside the wing (at the back
+    where the wing goes back) (boxes and convex hulls; no generator code)."""
     h = floors * storey
     hx, hz = 0.5 * width, 0.5 * depth
     x0, x1 = sorted((wing_at * hx, wing_at * (hx - wing_width)))
