@@ -319,16 +319,3 @@ def test_a_learned_start_that_fits_badly_adds_the_presets_stage(tiny_case, monke
             assert record["won"] == "presets" and seen["final"][0].best_loss == pytest.approx(0.1)
         else:
             assert list(start["origin"]) == ["learned: kept"] and record["won"] == "learned"
-
-
-def test_spread_proposals_cover_every_value_of_the_spread_parameter():
-    """``spread_choices``: the most probable joint for each value of the spread parameter, most
-    probable first, then the most probable joints not yet taken, up to ``k``."""
-    from ipm.learned.propose import discrete_choices, spread_choices
-
-    probs = [np.array([0.7, 0.3]), np.array([0.5, 0.3, 0.2])]
-    three = spread_choices(probs, ["a", "plan"], ("plan",), 2)
-    assert [levels for levels, _ in three] == [(0, 0), (0, 1), (0, 2)]  # every plan, though k is 2
-    five = spread_choices(probs, ["a", "plan"], ("plan",), 5)
-    assert [levels for levels, _ in five][:3] == [(0, 0), (0, 1), (0, 2)]
-    assert [levels for levels, _ in five][3:] == [c for c, _ in discrete_choices(probs, 5) if c[1:] and c[0] == 1][:2]
