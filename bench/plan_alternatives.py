@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ipm.generators.buildings.table import L_PLAN, RECTANGLE, T_PLAN, U_PLAN
+from ipm.generators.buildings.table import L_PLAN, RECTANGLE, T_PLAN, U_PLAN, WINGS
 
 SHARE_MAIN = 0.6
 """The main wing's share of the extent's depth where the plan has back wings (the rest theirs)."""
@@ -30,6 +30,8 @@ ANNEX_DEPTH = 0.6
 """The annex's width across it as a share of the main wing's depth."""
 BACK_WIDTH = {RECTANGLE: 0.45, L_PLAN: 0.45, T_PLAN: 0.45, U_PLAN: 0.3}
 """A back wing's width as a share of the main wing's, by plan (each of a U's two; a rectangle's unused)."""
+WING_PITCH = 0.8
+"""A laid wing's roof height as a share of the main roof's (a wing is narrower than the main wing)."""
 
 
 def extent(p: dict) -> tuple[float, float, float, float]:
@@ -56,9 +58,9 @@ def laid(p: dict, plan: int, annex: int) -> tuple[dict, np.ndarray]:
         q[f"wing{k}_width"] = BACK_WIDTH[plan] * q["width"]
         q[f"wing{k}_shift"] = 0.0
     q["wing3_length"], q["wing3_width"], q["wing3_shift"] = SHARE_ANNEX * width, ANNEX_DEPTH * q["depth"], 0.0
-    for k in (1, 2, 3):
+    for k in WINGS:
         q[f"wing{k}_floors"], q[f"wing{k}_roof"] = p["floors"], p["roof_type"]
-        q[f"wing{k}_roof_height"] = 0.8 * p["roof_height"]
+        q[f"wing{k}_roof_height"] = WING_PITCH * p["roof_height"]
     n0, n1, m0, m1 = extent(q)
     return q, np.array([(x0 + x1 - n0 - n1) / 2, 0.0, (z0 + z1 - m0 - m1) / 2])
 
