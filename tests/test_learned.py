@@ -319,19 +319,3 @@ def test_a_learned_start_that_fits_badly_adds_the_presets_stage(tiny_case, monke
             assert record["won"] == "presets" and seen["final"][0].best_loss == pytest.approx(0.1)
         else:
             assert list(start["origin"]) == ["learned: kept"] and record["won"] == "learned"
-
-
-def test_spread_proposals_add_every_missing_value_of_the_spread_parameter():
-    """``spread_choices``: the ``k`` most probable joints, then the most probable joint for each value
-    of the spread parameter none of them has, most probable first."""
-    from ipm.learned.propose import discrete_choices, spread_choices
-
-    probs = [np.array([0.7, 0.3]), np.array([0.5, 0.3, 0.2])]
-    top = [levels for levels, _ in discrete_choices(probs, 2)]
-    assert top == [(0, 0), (0, 1)]
-    assert [levels for levels, _ in spread_choices(probs, ["a", "plan"], ("plan",), 2)] == top + [(0, 2)]
-    four = [levels for levels, _ in discrete_choices(probs, 4)]  # (0,0) (0,1) (1,0) (0,2): every plan
-    assert [levels for levels, _ in spread_choices(probs, ["a", "plan"], ("plan",), 4)] == four
-    one = spread_choices(probs, ["a", "plan"], ("plan",), 1)
-    assert [levels for levels, _ in one] == [(0, 0), (0, 1), (0, 2)]
-    assert [p for _, p in one] == pytest.approx([0.35, 0.21, 0.14])

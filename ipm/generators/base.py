@@ -185,8 +185,6 @@ class Generator:
     moves: tuple[str, ...] = ("polish",)
     """The moves of the differentiable search this generator wants, by name (``ipm.search.moves``;
     a move's module says what else it asks of the generator)."""
-    proposal_spread: tuple[str, ...] = ()
-    """Discrete parameters whose every value the learned start may propose (``LoopSettings.learned_spread``)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""

@@ -101,38 +101,17 @@ def propose_camera(generator: str, views, prepared: str | Path | None = None) ->
     return float(pose[3]), float(2.0 * np.arctan(np.exp(pose[4])))
 
 
-def spread_choices(probs: list[np.ndarray], names: list[str], spread: tuple[str, ...], k: int):
-    """The ``k`` most probable joint choices (as :func:`discrete_choices`), then for every combination
-    of the discrete parameters ``spread``'s values (by name in ``names``) that none of them has, the
-    most probable joint with it, most probable first."""
-    fixed = [names.index(n) for n in spread]
-    out = discrete_choices(probs, k)
-    seen = {tuple(levels[i] for i in fixed) for levels, _ in out}
-    extra = []
-    for values in itertools.product(*(range(len(probs[i])) for i in fixed)):
-        if values in seen:
-            continue
-        forced = [np.eye(len(p))[values[fixed.index(i)]] if i in fixed else p for i, p in enumerate(probs)]
-        (levels, _), = discrete_choices(forced, 1)
-        extra.append((levels, float(np.prod([probs[i][v] for i, v in enumerate(levels)]))))
-    return out + sorted(extra, key=lambda t: -t[1])
-
-
-def propose(problem, views, k: int = 1, prepared: str | Path | None = None,
-            spread: tuple[str, ...] = ()) -> list[np.ndarray]:
+def propose(problem, views, k: int = 1, prepared: str | Path | None = None) -> list[np.ndarray]:
     """Up to ``k`` starts ``z`` for ``problem`` from the first view, best first: the predicted
     continuous parameters and pose with each of the ``k`` most probable joints of the discrete
-    parameters (with ``spread``, :func:`spread_choices`: then one for each value of those not among them).
-    An unknown camera (a photo's) is read by the camera-hidden variant, its genes at the render
-    camera's (whose pitch and lens :func:`propose_camera` can have set)."""
+    parameters. An unknown camera (a photo's) is read by the camera-hidden variant, its genes at
+    the render camera's (whose pitch and lens :func:`propose_camera` can have set)."""
     gen = problem.generator
     spec = gen.spec
     out = read_view(gen.name, views, prepared, camera_hidden=problem.camera is not None)
     yaw = float(np.arctan2(out["yaw"][0, 1], out["yaw"][0, 0]))
-    probs = [p[0] for p in out["probs"]]
-    names = [n for n, d in zip(spec.names, spec.discrete) if d]
     starts = []
-    for levels, _ in (spread_choices(probs, names, spread, k) if spread else discrete_choices(probs, k)):
+    for levels, _ in discrete_choices([p[0] for p in out["probs"]], k):
         u = np.zeros(len(spec))
         u[~spec.discrete] = out["u"][0]
         x = spec.from_unit(u)

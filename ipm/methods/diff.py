@@ -46,8 +46,7 @@ def fit(views: Views, generator: str, profile: str, seed: int, progress: bool, p
         if has_weights(generator, prepared, camera_hidden=True):  # else the prior, as start_for falls back
             views = at_proposed_camera(views, *propose_camera(generator, views, prepared))
     problem = Problem.for_views(get_generator(generator), views, max_tilt=prof.loop.max_tilt)
-    start = start_for(problem, views, prof.loop.start, prof.loop.learned_proposals, prepared,
-                      spread=problem.generator.proposal_spread if prof.loop.learned_spread else ())
+    start = start_for(problem, views, prof.loop.start, prof.loop.learned_proposals, prepared)
     z, trace = reconstruct(problem, views, prof, seed=seed, progress=progress, start=start)
     return problem, z, trace, prof
 

@@ -52,11 +52,6 @@ class LoopSettings(Settings):
     learned_proposals: Annotated[int, at_least(1)] = 4
     """How many of the regressor's proposals (its most probable discrete joints) the learned start puts
     in the population."""
-    learned_spread: bool = False
-    """The learned start adds to its proposals, for each value of the generator's ``proposal_spread``
-    parameters (a building's plan) none of them has, the regressor's most probable joint with that
-    value, in place of the last presets: the plans it ranks low still start a basin of their own
-    (docs/decisions.md, 'Learned proposals plus the other plans')."""
     learned_generations: Annotated[int, at_least(1)] = 4
     """The memetic stage's generations (at most ``ga_iterations``) when it starts from the learned
     proposals, which start near the answer (docs/decisions.md, 'Memetic stage from the learned start')."""

@@ -36,17 +36,16 @@ def preset_start(problem: Problem, settings: MemeticSettings, rng: np.random.Gen
     return pop
 
 
-def learned_start(views, proposals: int = 4, prepared=None, spread: tuple[str, ...] = ()):
+def learned_start(views, proposals: int = 4, prepared=None):
     """A start whose first ``proposals`` individuals are the regressor's proposals for ``views``
-    (``ipm.learned.propose``: its most probable discrete joints, with ``spread`` then the most probable
-    one for each value of those parameters they lack), the rest :func:`preset_start`'s."""
+    (``ipm.learned.propose``: its most probable discrete joints), the rest :func:`preset_start`'s."""
 
     def start(problem: Problem, settings: MemeticSettings, rng: np.random.Generator,
               prepare=lambda z: z) -> list[Individual]:
         from ipm.learned.propose import propose
 
         pop = []
-        for z in propose(problem, views, min(proposals, settings.population), prepared, spread)[: settings.population]:
+        for z in propose(problem, views, min(proposals, settings.population), prepared):
             z = prepare(z)
             pop.append(Individual(z, problem.key(z), "learned", lr=settings.lr))
         return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
@@ -55,7 +54,7 @@ def learned_start(views, proposals: int = 4, prepared=None, spread: tuple[str, .
     return start
 
 
-def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=None, spread: tuple[str, ...] = ()):
+def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=None):
     """The start of a fit of ``problem`` to ``views`` for the setting ``start``: ``learned`` is
     :func:`learned_start` where the regressor applies (a known camera, or an unknown one whose render
     camera it proposed; weights for the generator, ``prepared`` or shipped), else
@@ -65,5 +64,5 @@ def start_for(problem: Problem, views, start: str, proposals: int = 4, prepared=
     hidden = problem.camera is not None
     if start == "learned" and (not hidden or problem.camera.proposed) and \
             has_weights(problem.generator.name, prepared, camera_hidden=hidden):
-        return learned_start(views, proposals, prepared, spread)
+        return learned_start(views, proposals, prepared)
     return preset_start

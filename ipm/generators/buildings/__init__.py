@@ -63,8 +63,6 @@ class Buildings(Generator):
     """The class one facade alone carries, and that facade's count: the door tells the front from the
     back (``ipm.facades``)."""
     categorical = ("roof_type",)
-    proposal_spread = ("template",)
-    """The plan: rectangle, L, T, U (``LoopSettings.learned_spread``)."""
     placements = tuple({"chimney": 1, "chimney_x": cx, "chimney_z": cz, "chimney_size": 0.1, "chimney_height": 0.2}
                        for cx in (-0.3, 0.0, 0.3) for cz in (-0.3, 0.0, 0.3))
     """The chimney, switched on and mid-sized, at nine places on the roof (``ipm.search.moves.place``)."""
