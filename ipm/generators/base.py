@@ -185,6 +185,9 @@ class Generator:
     moves: tuple[str, ...] = ("polish",)
     """The moves of the differentiable search this generator wants, by name (``ipm.search.moves``;
     a move's module says what else it asks of the generator)."""
+    plan_parameters: tuple[str, ...] = ()
+    """Discrete parameters that make the object's plan (a building's wings): where the learned start's
+    fit of the input view is poor, its other values get a stage of their own (``LoopSettings.plan_check``)."""
     distance_ignores: tuple[str, ...] = ()
     """Parameters left out of :func:`ipm.cases.unit_distance` (a random stream's seed: any two
     seeds are far apart in the unit cube, yet they do not make a different kind of object)."""

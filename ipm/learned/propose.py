@@ -101,17 +101,36 @@ def propose_camera(generator: str, views, prepared: str | Path | None = None) ->
     return float(pose[3]), float(2.0 * np.arctan(np.exp(pose[4])))
 
 
-def propose(problem, views, k: int = 1, prepared: str | Path | None = None) -> list[np.ndarray]:
+def choices_apart(probs: list[np.ndarray], names: list[str], apart: dict[str, int]) -> list[tuple[tuple[int, ...], float]]:
+    """For every combination of values of the discrete parameters ``apart`` names (by ``names``)
+    other than the one it gives, the most probable joint choice with it (as :func:`discrete_choices`),
+    most probable first."""
+    fixed = [names.index(n) for n in apart]
+    out = []
+    for values in itertools.product(*(range(len(probs[i])) for i in fixed)):
+        if values == tuple(apart.values()):
+            continue
+        forced = [np.eye(len(p))[values[fixed.index(i)]] if i in fixed else p for i, p in enumerate(probs)]
+        (levels, _), = discrete_choices(forced, 1)
+        out.append((levels, float(np.prod([probs[i][v] for i, v in enumerate(levels)]))))
+    return sorted(out, key=lambda t: -t[1])
+
+
+def propose(problem, views, k: int = 1, prepared: str | Path | None = None,
+            apart: dict[str, int] | None = None) -> list[np.ndarray]:
     """Up to ``k`` starts ``z`` for ``problem`` from the first view, best first: the predicted
     continuous parameters and pose with each of the ``k`` most probable joints of the discrete
-    parameters. An unknown camera (a photo's) is read by the camera-hidden variant, its genes at
-    the render camera's (whose pitch and lens :func:`propose_camera` can have set)."""
+    parameters; with ``apart`` (discrete parameters by name, each with a value index), instead
+    :func:`choices_apart`'s joints. An unknown camera (a photo's) is read by the camera-hidden
+    variant, its genes at the render camera's (whose pitch and lens :func:`propose_camera` can have set)."""
     gen = problem.generator
     spec = gen.spec
     out = read_view(gen.name, views, prepared, camera_hidden=problem.camera is not None)
     yaw = float(np.arctan2(out["yaw"][0, 1], out["yaw"][0, 0]))
+    probs = [p[0] for p in out["probs"]]
+    names = [n for n, d in zip(spec.names, spec.discrete) if d]
     starts = []
-    for levels, _ in discrete_choices([p[0] for p in out["probs"]], k):
+    for levels, _ in (choices_apart(probs, names, apart) if apart else discrete_choices(probs, k)):
         u = np.zeros(len(spec))
         u[~spec.discrete] = out["u"][0]
         x = spec.from_unit(u)

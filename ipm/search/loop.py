@@ -59,6 +59,11 @@ class LoopSettings(Settings):
     """The learned start checks its fit: where the best loss of its memetic stage is above this, the
     stage runs again from the presets' start at full length and both last generations go to the
     finalists; ``None`` trusts it always (docs/decisions.md, 'A learned start that checks its fit')."""
+    plan_check: Annotated[float, Range(0.0, 1.0)] | None = None
+    """The learned start checks its plan: where the input-view IoU (:func:`input_iou`) of its memetic
+    stage's best is below this, a stage as long runs from the regressor's most probable joint for each
+    other plan (``Generator.plan_parameters``) and both last generations go to the finalists; ``None``
+    never (docs/decisions.md, 'A plan check by the input view')."""
     occam_plan: Annotated[float, Range(0.0, 1.0)] = 0.03
     """Between the refined finalists, one with fewer parts (``Generator.occam_parts``: a building's
     wings) is kept instead of the lowest loss where its loss is higher by at most this share of the
@@ -196,7 +201,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
         return memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, settings,
                        rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, side=side)
 
-    final, added = [], set()
+    final, added = [], {}
     for held in holds:
         with problem.holding(held):
             last = stage(start(problem, mem, rng, objective.match_area), mem)
@@ -207,13 +212,23 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
                 if again:
                     track.extend(full.ga_iterations * (full.adam_per_iteration + full.population))
                     more = stage(preset_start(problem, full, rng, objective.match_area), full)
-                    added |= {id(ind) for ind in more}
+                    added.update({id(ind): "presets" for ind in more})
                     last += more
+                if loop.plan_check is not None and problem.generator.plan_parameters:
+                    seen = input_iou(problem, views, last[0].best_z, max(loop.refine_lod, least))
+                    other = bool(seen < loop.plan_check)
+                    track.recorder("start", objective.width)(
+                        f"plan check: input IoU {seen:.4f}, " + ("other plans added" if other else "plan kept"),
+                        last[0].best_loss)
+                    if other:
+                        track.extend(mem.ga_iterations * (mem.adam_per_iteration + mem.population))
+                        more = stage(start.elsewhere(problem, mem, rng, objective.match_area, last[0].best_z), mem)
+                        added.update({id(ind): "other plans" for ind in more})
+                        last += more
             final += last
     final.sort(key=lambda ind: ind.best_loss)
     if added:
-        track.recorder("start", objective.width)(
-            "won: presets" if id(final[0]) in added else "won: learned", final[0].best_loss)
+        track.recorder("start", objective.width)(f"won: {added.get(id(final[0]), 'learned')}", final[0].best_loss)
     checkpoint(final[0].best_z)
     chosen = finalists(problem, final, loop.refine_candidates)
     cands = [Candidate(ind.best_z, lineage=i) for i, ind in enumerate(chosen)]

@@ -50,7 +50,22 @@ def learned_start(views, proposals: int = 4, prepared=None):
             pop.append(Individual(z, problem.key(z), "learned", lr=settings.lr))
         return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
 
+    def elsewhere(problem: Problem, settings: MemeticSettings, rng: np.random.Generator, prepare, z: np.ndarray):
+        """A start whose first individuals are the regressor's most probable joint for each plan
+        (``Generator.plan_parameters``' values) other than ``z``'s, the rest :func:`preset_start`'s."""
+        from ipm.learned.propose import propose
+
+        spec, names = problem.spec, list(problem.spec.names)
+        x = spec.from_unit(z[: problem.n_shape])
+        apart = {n: int(round(x[names.index(n)] - spec.lower[names.index(n)])) for n in problem.generator.plan_parameters}
+        pop = []
+        for other in propose(problem, views, prepared=prepared, apart=apart)[: settings.population]:
+            other = prepare(other)
+            pop.append(Individual(other, problem.key(other), "other plan", lr=settings.lr))
+        return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
+
     start.learned = True  # the loop's memetic stage is shorter from it (LoopSettings.learned_generations)
+    start.elsewhere = elsewhere  # the plan check's second stage (LoopSettings.plan_check)
     return start
 
 

@@ -63,6 +63,8 @@ class Buildings(Generator):
     """The class one facade alone carries, and that facade's count: the door tells the front from the
     back (``ipm.facades``)."""
     categorical = ("roof_type",)
+    plan_parameters = ("template",)
+    """The plan: rectangle, L, T, U (``LoopSettings.plan_check``)."""
     placements = tuple({"chimney": 1, "chimney_x": cx, "chimney_z": cz, "chimney_size": 0.1, "chimney_height": 0.2}
                        for cx in (-0.3, 0.0, 0.3) for cz in (-0.3, 0.0, 0.3))
     """The chimney, switched on and mid-sized, at nine places on the roof (``ipm.search.moves.place``)."""
