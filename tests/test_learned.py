@@ -319,3 +319,113 @@ def test_a_learned_start_that_fits_badly_adds_the_presets_stage(tiny_case, monke
             assert record["won"] == "presets" and seen["final"][0].best_loss == pytest.approx(0.1)
         else:
             assert list(start["origin"]) == ["learned: kept"] and record["won"] == "learned"
+
+
+def test_choices_apart_proposes_each_other_plan_once():
+    """``choices_apart``: for every value of the named discrete parameters but the given one, the most
+    probable joint with it, most probable first."""
+    from ipm.learned.propose import choices_apart
+
+    probs = [np.array([0.7, 0.1, 0.15, 0.05]), np.array([0.4, 0.6]), np.array([0.2, 0.8])]
+    out = choices_apart(probs, ["template", "annex", "roof"], {"template": 0})
+    assert [c for c, _ in out] == [(2, 1, 1), (1, 1, 1), (3, 1, 1)]
+    assert [p for _, p in out] == pytest.approx([0.15 * 0.6 * 0.8, 0.1 * 0.6 * 0.8, 0.05 * 0.6 * 0.8])
+    both = choices_apart(probs, ["template", "annex", "roof"], {"template": 1, "annex": 1})
+    assert len(both) == 7 and (1, 1, 1) not in [c for c, _ in both]
+
+
+@pytest.fixture(scope="module")
+def building_view(tmp_path_factory, mitsuba_cpu):
+    """building_1 rendered at 64 px, one view."""
+    from tests.conftest import synthesized
+
+    return synthesized(tmp_path_factory, "building_1", n_views=1, res=64, spp=4) / "transforms.json"
+
+
+@pytest.mark.slow
+def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_case, monkeypatch):
+    """``plan_check``: where the input-view IoU of the learned stage's best is below it, a stage as
+    long runs from the regressor's joint for each other plan (``start.elsewhere``: shipped weights,
+    every plan but the best's once) and its best basin joins the learned stage's finalists as one
+    more; the trace's ``start`` rows (params.json's ``start``) say what the check saw. At or above
+    it, with ``None``, or for a generator without plan parameters (the dishes), the finalists are
+    the learned stage's alone."""
+    import pandas as pd
+
+    from ipm.io import load_views
+    from ipm.methods.diff import start_record
+    from ipm.optim.memetic import MemeticSettings
+    from ipm.profiles import get_profile
+    from ipm.search import loop
+    from ipm.search.starts import learned_start
+    from ipm.search.trial import TRACE_COLUMNS
+
+    views = load_views(building_view)
+    problem = Problem.for_views(get_generator("buildings"), views)
+    start = learned_start(views)
+    best = start(problem, MemeticSettings(population=6), np.random.default_rng(0))[0].z
+    others = start.elsewhere(problem, MemeticSettings(population=6), np.random.default_rng(0), lambda z: z, best)
+    plan = problem.spec.index["template"]
+    plans = [int(round(problem.spec.from_unit(ind.z[: problem.n_shape])[plan])) for ind in others[:3]]
+    first = int(round(problem.spec.from_unit(best[: problem.n_shape])[plan]))
+    assert [ind.origin for ind in others[:3]] == ["other plan"] * 3 and len(others) == 6
+    assert sorted(plans + [first]) == [0, 1, 2, 3] and others[3].origin != "other plan"
+
+    class Stop(Exception):
+        pass
+
+    calls, made, chosen = [], [], []
+    real_finalists = loop.finalists
+
+    def memetic(pop, objective, clip, key_of, n_shape, levels, settings, *rest, **kw):
+        calls.append({ind.origin for ind in pop})
+        for k, ind in enumerate(pop):
+            ind.best_loss, ind.best_z = 0.1 + 0.01 * k, ind.z
+        return sorted(pop, key=lambda ind: ind.best_loss)
+
+    def finalists(problem, final, k):
+        out = real_finalists(problem, final, k)
+        chosen[:] = [ind.origin for ind in out]
+        return out
+
+    class Stopped(loop.Tracker):  # stops the fit once its finalists are chosen
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+        def enter(self, stage, res, reset=False):
+            if stage != "memetic":
+                raise Stop
+            super().enter(stage, res, reset)
+
+    def fake(problem, settings, rng, prepare=None):
+        return start(problem, settings, rng, prepare or (lambda z: z))
+
+    fake.learned, fake.elsewhere = True, start.elsewhere
+    monkeypatch.setattr(loop, "memetic", memetic)
+    monkeypatch.setattr(loop, "finalists", finalists)
+    monkeypatch.setattr(loop, "Tracker", Stopped)
+    monkeypatch.setattr(loop, "input_iou", lambda *a, **k: 0.9)
+    cup_views = load_views(tiny_case / "transforms.json").subset([0])
+    cup = Problem.for_views(get_generator("dishes"), cup_views)
+    for prob, check, stages in ((problem, 0.95, 2), (problem, 0.9, 1), (problem, None, 1), (cup, 0.95, 1)):
+        calls.clear()
+        profile = get_profile("default", population=6, plan_check=check)
+        with pytest.raises(Stop):
+            loop.reconstruct(prob, views if prob is problem else cup_views, profile, progress=False, start=fake)
+        trace = pd.DataFrame(made[-1].rows, columns=TRACE_COLUMNS)
+        origins = list(trace[trace["stage"] == "start"]["origin"])
+        record = start_record(trace, profile)["start"]
+        assert len(calls) == stages and "learned" in calls[0] and record["plan_check"] == check
+        n = profile.loop.refine_candidates
+        if stages == 2:  # the learned stage's finalists, then the other plans' best
+            assert "other plan" in calls[1] and "learned" not in calls[1]
+            assert chosen[-1] == "other plan" and "other plan" not in chosen[:-1] and len(chosen) == n + 1
+            assert origins[1:] == ["plan check: input IoU 0.9000, other plans added"]
+            assert record["plan_checks"] == [{"input_iou": 0.9, "other_plans_added": True}]
+        else:
+            assert "other plan" not in chosen and len(chosen) == n
+            if check is not None and prob is problem:
+                assert origins[1:] == ["plan check: input IoU 0.9000, plan kept"]
+            else:
+                assert not record["plan_checks"]

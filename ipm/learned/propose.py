@@ -101,7 +101,8 @@ def propose_camera(generator: str, views, prepared: str | Path | None = None) ->
     return float(pose[3]), float(2.0 * np.arctan(np.exp(pose[4])))
 
 
-def choices_apart(probs: list[np.ndarray], names: list[str], apart: dict[str, int]) -> list[tuple[tuple[int, ...], float]]:
+def choices_apart(probs: list[np.ndarray], names: list[str],
+                  apart: dict[str, int]) -> list[tuple[tuple[int, ...], float]]:
     """For every combination of values of the discrete parameters ``apart`` names (by ``names``)
     other than the one it gives, the most probable joint choice with it (as :func:`discrete_choices`),
     most probable first."""

@@ -103,8 +103,8 @@ def write_fit(out: str | Path, problem: Problem, z: np.ndarray, trace: pd.DataFr
 def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:
     """params.json's ``start`` where the fit began from the learned start: the best loss of its
     memetic stage per run of it, whether the presets' stage was added (``learned_fit``), the plan
-    check's input-view IoU and whether other plans were added (``plan_check``) and, where a stage was
-    added, which start the best of the memetic stage came from."""
+    check's input-view IoU, whether other plans were added (``plan_check``) and whose finalist was
+    kept, and, where the presets' stage was added, which start the best of the memetic stage came from."""
     rows = trace[trace["stage"] == "start"]
     if rows.empty:
         return {}
@@ -114,8 +114,10 @@ def start_record(trace: pd.DataFrame, prof: DiffProfile) -> dict:
               "other_plans_added": r.origin.endswith("other plans added")}
              for r in rows.itertuples() if r.origin.startswith("plan check")]
     won = [r.origin.split(": ")[1] for r in rows.itertuples() if r.origin.startswith("won")]
+    kept = [r.origin.split(": ")[1] for r in rows.itertuples() if r.origin.startswith("plan finalist")]
     return {"start": {"learned_fit": prof.loop.learned_fit, "checks": checks, "plan_check": prof.loop.plan_check,
-                      "plan_checks": plans, "won": won[0] if won else "learned"}}
+                      "plan_checks": plans, "plan_finalist": kept[0] if kept else None,
+                      "won": won[0] if won else "learned"}}
 
 
 def placed_mesh(mesh, place: np.ndarray | None):

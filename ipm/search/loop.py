@@ -62,8 +62,8 @@ class LoopSettings(Settings):
     plan_check: Annotated[float, Range(0.0, 1.0)] | None = None
     """The learned start checks its plan: where the input-view IoU (:func:`input_iou`) of its memetic
     stage's best is below this, a stage as long runs from the regressor's most probable joint for each
-    other plan (``Generator.plan_parameters``) and both last generations go to the finalists; ``None``
-    never (docs/decisions.md, 'A plan check by the input view')."""
+    other plan (``Generator.plan_parameters``) and its best basin joins the finalists as one more;
+    ``None`` never (docs/decisions.md, 'A plan check by the input view')."""
     occam_plan: Annotated[float, Range(0.0, 1.0)] = 0.03
     """Between the refined finalists, one with fewer parts (``Generator.occam_parts``: a building's
     wings) is kept instead of the lowest loss where its loss is higher by at most this share of the
@@ -201,7 +201,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
         return memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, settings,
                        rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, side=side)
 
-    final, added = [], {}
+    final, added, elsewhere = [], {}, []
     for held in holds:
         with problem.holding(held):
             last = stage(start(problem, mem, rng, objective.match_area), mem)
@@ -221,16 +221,22 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
                         f"plan check: input IoU {seen:.4f}, " + ("other plans added" if other else "plan kept"),
                         last[0].best_loss)
                     if other:
-                        track.extend(mem.ga_iterations * (mem.adam_per_iteration + mem.population))
-                        more = stage(start.elsewhere(problem, mem, rng, objective.match_area, last[0].best_z), mem)
-                        added.update({id(ind): "other plans" for ind in more})
-                        last += more
+                        per_finalist = sum(m.cost(problem, profile)
+                                           for p in ("finalist", "stage", "refine") for m in phase[p])
+                        track.extend(mem.ga_iterations * (mem.adam_per_iteration + mem.population)
+                                     + loop.refine_iterations[0] + 1 + per_finalist)
+                        others = start.elsewhere(problem, mem, rng, objective.match_area, last[0].best_z)
+                        elsewhere += stage(others, mem)
             final += last
     final.sort(key=lambda ind: ind.best_loss)
     if added:
         track.recorder("start", objective.width)(f"won: {added.get(id(final[0]), 'learned')}", final[0].best_loss)
     checkpoint(final[0].best_z)
     chosen = finalists(problem, final, loop.refine_candidates)
+    extra = None
+    if elsewhere:  # the other plans' best basin one finalist more; the learned stage's finalists all stay
+        more = finalists(problem, chosen + sorted(elsewhere, key=lambda ind: ind.best_loss), len(chosen) + 1)
+        extra, chosen = (len(chosen) if len(more) > len(chosen) else None), more
     cands = [Candidate(ind.best_z, lineage=i) for i, ind in enumerate(chosen)]
     for move in phase["finalist"]:
         cands = run(move, cands, objective, objective)
@@ -265,6 +271,10 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
                 record(f"finalist {left[k]} kept: {parts[k]} parts, the lowest loss's {parts[lowest]}", losses[k])
             cands = [cands[k]]
         checkpoint(cands[0].z)
+    if extra is not None:
+        track.recorder("start", objective.width)(
+            "plan finalist: " + ("the other plans' kept" if cands[0].lineage == extra else "the learned stage's kept"),
+            track.rows[-1][5])
     for move in phase["end"]:
         cands = run(move, cands, objective, objective)
     checkpoint(cands[0].z)

@@ -55,9 +55,9 @@ def learned_start(views, proposals: int = 4, prepared=None):
         (``Generator.plan_parameters``' values) other than ``z``'s, the rest :func:`preset_start`'s."""
         from ipm.learned.propose import propose
 
-        spec, names = problem.spec, list(problem.spec.names)
+        spec, index = problem.spec, problem.spec.index
         x = spec.from_unit(z[: problem.n_shape])
-        apart = {n: int(round(x[names.index(n)] - spec.lower[names.index(n)])) for n in problem.generator.plan_parameters}
+        apart = {n: int(round(x[index[n]] - spec.lower[index[n]])) for n in problem.generator.plan_parameters}
         pop = []
         for other in propose(problem, views, prepared=prepared, apart=apart)[: settings.population]:
             other = prepare(other)
