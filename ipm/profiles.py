@@ -78,7 +78,7 @@ PROFILES = {
     # default: sizes and stages chosen on dev (docs/decisions.md, 'Memetic stage size', 'Last stage length' and
     # the sections named in each setting's docstring)
     "default": dict(population=16, ga_iterations=12, adam_per_iteration=64, memetic_res=96,
-                    refine_res=(128, 256), refine_iterations=(100, 300), refine_candidates=3,
+                    refine_res=(128, 256), refine_iterations=(100, 300), refine_candidates=3, plan_check=0.96,
                     decide_steps=30, decide_rounds=3, decide_shares=(0.3, 0.6), decide_kinds=3, sight_steps=90,
                     place_steps=40, focal_sweep=3, pitch_sweep=2,
                     pitch_starts=(7.5, 22.5, 37.5, 52.5)),
