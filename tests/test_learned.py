@@ -398,10 +398,6 @@ def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_ca
                 raise Stop
             super().enter(stage, res, reset)
 
-    def fake(problem, settings, rng, prepare=None):
-        return start(problem, settings, rng, prepare or (lambda z: z))
-
-    fake.learned, fake.elsewhere = True, start.elsewhere
     monkeypatch.setattr(loop, "memetic", memetic)
     monkeypatch.setattr(loop, "finalists", finalists)
     monkeypatch.setattr(loop, "Tracker", Stopped)
@@ -412,7 +408,7 @@ def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_ca
         calls.clear()
         profile = get_profile("default", population=6, plan_check=check)
         with pytest.raises(Stop):
-            loop.reconstruct(prob, views if prob is problem else cup_views, profile, progress=False, start=fake)
+            loop.reconstruct(prob, views if prob is problem else cup_views, profile, progress=False, start=start)
         trace = pd.DataFrame(made[-1].rows, columns=TRACE_COLUMNS)
         origins = list(trace[trace["stage"] == "start"]["origin"])
         record = start_record(trace, profile)["start"]

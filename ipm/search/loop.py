@@ -201,7 +201,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
         return memetic(pop, objective, problem.clip, problem.key, problem.n_shape, problem.spec.levels, settings,
                        rng, track.on_eval, prepare=objective.match_area, yaw_free=problem.yaw_free, side=side)
 
-    final, added, elsewhere = [], {}, []
+    final, added, elsewhere = [], set(), []
     for held in holds:
         with problem.holding(held):
             last = stage(start(problem, mem, rng, objective.match_area), mem)
@@ -212,7 +212,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
                 if again:
                     track.extend(full.ga_iterations * (full.adam_per_iteration + full.population))
                     more = stage(preset_start(problem, full, rng, objective.match_area), full)
-                    added.update({id(ind): "presets" for ind in more})
+                    added |= {id(ind) for ind in more}
                     last += more
                 if loop.plan_check is not None and problem.generator.plan_parameters:
                     seen = input_iou(problem, views, last[0].best_z, max(loop.refine_lod, least))
@@ -230,7 +230,8 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
             final += last
     final.sort(key=lambda ind: ind.best_loss)
     if added:
-        track.recorder("start", objective.width)(f"won: {added.get(id(final[0]), 'learned')}", final[0].best_loss)
+        track.recorder("start", objective.width)(
+            "won: presets" if id(final[0]) in added else "won: learned", final[0].best_loss)
     checkpoint(final[0].best_z)
     chosen = finalists(problem, final, loop.refine_candidates)
     extra = None

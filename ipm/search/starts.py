@@ -36,6 +36,17 @@ def preset_start(problem: Problem, settings: MemeticSettings, rng: np.random.Gen
     return pop
 
 
+def proposed_start(problem: Problem, settings: MemeticSettings, rng: np.random.Generator, prepare,
+                   proposals: list[np.ndarray], origin: str) -> list[Individual]:
+    """A population whose first individuals are ``proposals`` (at most the population, each
+    ``prepare``d, named ``origin``), the rest :func:`preset_start`'s."""
+    pop = []
+    for z in proposals[: settings.population]:
+        z = prepare(z)
+        pop.append(Individual(z, problem.key(z), origin, lr=settings.lr))
+    return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
+
+
 def learned_start(views, proposals: int = 4, prepared=None):
     """A start whose first ``proposals`` individuals are the regressor's proposals for ``views``
     (``ipm.learned.propose``: its most probable discrete joints), the rest :func:`preset_start`'s."""
@@ -44,11 +55,8 @@ def learned_start(views, proposals: int = 4, prepared=None):
               prepare=lambda z: z) -> list[Individual]:
         from ipm.learned.propose import propose
 
-        pop = []
-        for z in propose(problem, views, min(proposals, settings.population), prepared):
-            z = prepare(z)
-            pop.append(Individual(z, problem.key(z), "learned", lr=settings.lr))
-        return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
+        zs = propose(problem, views, min(proposals, settings.population), prepared)
+        return proposed_start(problem, settings, rng, prepare, zs, "learned")
 
     def elsewhere(problem: Problem, settings: MemeticSettings, rng: np.random.Generator, prepare, z: np.ndarray):
         """A start whose first individuals are the regressor's most probable joint for each plan
@@ -58,11 +66,8 @@ def learned_start(views, proposals: int = 4, prepared=None):
         spec, index = problem.spec, problem.spec.index
         x = spec.from_unit(z[: problem.n_shape])
         apart = {n: int(round(x[index[n]] - spec.lower[index[n]])) for n in problem.generator.plan_parameters}
-        pop = []
-        for other in propose(problem, views, prepared=prepared, apart=apart)[: settings.population]:
-            other = prepare(other)
-            pop.append(Individual(other, problem.key(other), "other plan", lr=settings.lr))
-        return pop + preset_start(problem, settings, rng, prepare)[: settings.population - len(pop)]
+        zs = propose(problem, views, prepared=prepared, apart=apart)
+        return proposed_start(problem, settings, rng, prepare, zs, "other plan")
 
     start.learned = True  # the loop's memetic stage is shorter from it (LoopSettings.learned_generations)
     start.elsewhere = elsewhere  # the plan check's second stage (LoopSettings.plan_check)
