@@ -349,7 +349,7 @@ def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_ca
     every plan but the best's once) and its best basin joins the learned stage's finalists as one
     more; the trace's ``start`` rows (params.json's ``start``) say what the check saw. At or above
     it, with ``None``, or for a generator without plan parameters (the dishes), the finalists are
-    the learned stage's alone."""
+    the learned stage's alone. A ``z`` checked is ray-cast once."""
     import pandas as pd
 
     from ipm.io import load_views
@@ -401,11 +401,12 @@ def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_ca
     monkeypatch.setattr(loop, "memetic", memetic)
     monkeypatch.setattr(loop, "finalists", finalists)
     monkeypatch.setattr(loop, "Tracker", Stopped)
-    monkeypatch.setattr(loop, "input_iou", lambda *a, **k: 0.9)
+    cast = []
+    monkeypatch.setattr(loop, "input_iou", lambda *a, **k: cast.append(1) or 0.9)
     cup_views = load_views(tiny_case / "transforms.json").subset([0])
     cup = Problem.for_views(get_generator("dishes"), cup_views)
     for prob, check, stages in ((problem, 0.95, 2), (problem, 0.9, 1), (problem, None, 1), (cup, 0.95, 1)):
-        calls.clear()
+        calls.clear(), cast.clear()
         profile = get_profile("default", population=6, plan_check=check)
         with pytest.raises(Stop):
             loop.reconstruct(prob, views if prob is problem else cup_views, profile, progress=False, start=start)
@@ -414,6 +415,7 @@ def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_ca
         record = start_record(trace, profile)["start"]
         assert len(calls) == stages and "learned" in calls[0] and record["plan_check"] == check
         n = profile.loop.refine_candidates
+        assert len(cast) == 1  # the check's best is the finalists' first: its view is cast once
         if stages == 2:  # the learned stage's finalists, then the other plans' best
             assert "other plan" in calls[1] and "learned" not in calls[1]
             assert chosen[-1] == "other plan" and "other plan" not in chosen[:-1] and len(chosen) == n + 1

@@ -172,11 +172,18 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
     holds = [{}] + [h for m in phase["memetic"] for h in m.holds(problem, profile)]
     total = planned_evaluations(problem, profile, mem, phase, len(holds))
     track, rng, least = Tracker(total, progress), np.random.default_rng(seed), problem.generator.min_fit_lod
-    ious = {}
+    ious, cast = {}, {}
+
+    def iou_of(z: np.ndarray) -> float:
+        """:func:`input_iou` of ``z`` at the refinement's level of detail, each ``z`` cast once."""
+        key = np.asarray(z).tobytes()
+        if key not in cast:
+            cast[key] = input_iou(problem, views, z, max(loop.refine_lod, least))
+        return cast[key]
 
     def checkpoint(z: np.ndarray) -> None:
         """The input-view IoU of the current stage's best, on the stage's last trace row."""
-        ious[len(track.rows) - 1] = input_iou(problem, views, z, max(loop.refine_lod, least))
+        ious[len(track.rows) - 1] = iou_of(z)
 
     def run(move, cands: list[Candidate], steps, score) -> list[Candidate]:
         label = move.label or move.name
@@ -215,7 +222,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
                     added |= {id(ind) for ind in more}
                     last += more
                 if loop.plan_check is not None and problem.generator.plan_parameters:
-                    seen = input_iou(problem, views, last[0].best_z, max(loop.refine_lod, least))
+                    seen = iou_of(last[0].best_z)
                     other = bool(seen < loop.plan_check)
                     track.recorder("start", objective.width)(
                         f"plan check: input IoU {seen:.4f}, " + ("other plans added" if other else "plan kept"),
