@@ -68,8 +68,7 @@ def learned_start(views, proposals: int = 4, prepared=None):
         spec, index = problem.spec, problem.spec.index
         x = spec.from_unit(z[: problem.n_shape])
         apart = {n: int(round(x[index[n]] - spec.lower[index[n]])) for n in problem.generator.plan_parameters}
-        zs = [problem.clip(np.concatenate([p[: problem.n_shape], [np.mod(p[problem.n_shape] + 2 * np.pi * k / turns, 2 * np.pi)],
-                                           p[problem.n_shape + 1:]]))
+        zs = [problem.turned(p, 2 * np.pi * k / turns)
               for p in propose(problem, views, prepared=prepared, apart=apart) for k in range(turns)]
         return proposed_start(problem, settings, rng, prepare, zs, "other plan")
 
