@@ -19,10 +19,16 @@ from ipm.runtime import configure_threads  # noqa: E402
 THREADS = max(1, min(2, len(os.sched_getaffinity(0)) // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
 """Threads of a test process: 2, or its share of the CPUs where test workers run side by side."""
 
+TEST_COMPILE = "--xla_backend_optimization_level=0"
+"""XLA's CPU programs built without LLVM's optimization passes, for the tests only: most tests compile
+more than they run, and those passes are most of a compile (docs/decisions.md, 'Compile flag')."""
+
 # before anything imports jax; XLA's older CPU code generator for fusions (ipm.runtime.QUICK_COMPILE)
-# here and, through XLA_FLAGS, in every process the tests start: most tests compile more than they
-# run; the package uses it for its diff fits only, where that holds too (docs/decisions.md,
-# 'Compile flag'). The tests check behaviour and tolerances.
+# and TEST_COMPILE here and, through XLA_FLAGS, in every process the tests start; the package uses the
+# first for its diff fits, where compiling is much of a fit too. The tests check behaviour and
+# tolerances, which neither flag moves.
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{TEST_COMPILE} {os.environ.get('XLA_FLAGS', '')}".strip()
 configure_threads(THREADS, quick_compile=True)
 
 import numpy as np  # noqa: E402
