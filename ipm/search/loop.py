@@ -64,10 +64,6 @@ class LoopSettings(Settings):
     stage's best is below this, a stage as long runs from the regressor's most probable joint for each
     other plan (``Generator.plan_parameters``) and its best basin joins the finalists as one more;
     ``None`` never (docs/decisions.md, 'A plan check by the input view')."""
-    plan_turns: Annotated[int, at_least(1)] = 1
-    """Starts of each other plan in the plan check's stage: the regressor's joint at its yaw and at
-    ``k / plan_turns`` of a full turn more for every ``k`` below ``plan_turns`` (2: the half turn a
-    rectangle's outline cannot tell, and with it the side its missing wing stands on)."""
     occam_plan: Annotated[float, Range(0.0, 1.0)] = 0.03
     """Between the refined finalists, one with fewer parts (``Generator.occam_parts``: a building's
     wings) is kept instead of the lowest loss where its loss is higher by at most this share of the
@@ -236,8 +232,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
                                            for p in ("finalist", "stage", "refine") for m in phase[p])
                         track.extend(mem.ga_iterations * (mem.adam_per_iteration + mem.population)
                                      + loop.refine_iterations[0] + 1 + per_finalist)
-                        others = start.elsewhere(problem, mem, rng, objective.match_area, last[0].best_z,
-                                                 loop.plan_turns)
+                        others = start.elsewhere(problem, mem, rng, objective.match_area, last[0].best_z)
                         elsewhere += stage(others, mem)
             final += last
     final.sort(key=lambda ind: ind.best_loss)

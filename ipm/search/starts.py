@@ -58,18 +58,15 @@ def learned_start(views, proposals: int = 4, prepared=None):
         zs = propose(problem, views, min(proposals, settings.population), prepared)
         return proposed_start(problem, settings, rng, prepare, zs, "learned")
 
-    def elsewhere(problem: Problem, settings: MemeticSettings, rng: np.random.Generator, prepare, z: np.ndarray,
-                  turns: int = 1):
+    def elsewhere(problem: Problem, settings: MemeticSettings, rng: np.random.Generator, prepare, z: np.ndarray):
         """A start whose first individuals are the regressor's most probable joint for each plan
-        (``Generator.plan_parameters``' values) other than ``z``'s, each at its yaw and at every
-        ``k / turns`` of a full turn more, the rest :func:`preset_start`'s."""
+        (``Generator.plan_parameters``' values) other than ``z``'s, the rest :func:`preset_start`'s."""
         from ipm.learned.propose import propose
 
         spec, index = problem.spec, problem.spec.index
         x = spec.from_unit(z[: problem.n_shape])
         apart = {n: int(round(x[index[n]] - spec.lower[index[n]])) for n in problem.generator.plan_parameters}
-        zs = [problem.turned(p, 2 * np.pi * k / turns)
-              for p in propose(problem, views, prepared=prepared, apart=apart) for k in range(turns)]
+        zs = propose(problem, views, prepared=prepared, apart=apart)
         return proposed_start(problem, settings, rng, prepare, zs, "other plan")
 
     start.learned = True  # the loop's memetic stage is shorter from it (LoopSettings.learned_generations)
