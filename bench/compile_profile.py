@@ -63,8 +63,8 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
                 tests[test] += seconds
     ranked = sorted(programs.items(), key=lambda kv: -kv[1]["seconds"])[:top]
     again = sorted(((k, c) for k, c in shapes.items() if c["compiles"] > 1), key=lambda kv: -kv[1]["seconds"])[:top]
-    return {"processes": len(processes), "totals": {k: round(v, 1) for k, v in totals.items()},
-            "programs": [{"program": name, "compiles": c["compiles"], "seconds": round(c["seconds"], 1),
+    return {"processes": len(processes), "totals": {k: round(v, 3) for k, v in totals.items()},
+            "programs": [{"program": name, "compiles": c["compiles"], "seconds": round(c["seconds"], 3),
                           "hits": c["hits"]} for name, c in ranked],
             "tests": [{"test": t, "seconds": round(s, 1)} for t, s in tests.most_common(top)],
             "same_shapes": [{"program": name, "shapes": args, "compiles": c["compiles"], "seconds": round(c["seconds"], 1)}

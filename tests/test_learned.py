@@ -370,12 +370,6 @@ def test_a_poor_plan_adds_a_finalist_from_the_other_plans(building_view, tiny_ca
     first = int(round(problem.spec.from_unit(best[: problem.n_shape])[plan]))
     assert [ind.origin for ind in others[:3]] == ["other plan"] * 3 and len(others) == 6
     assert sorted(plans + [first]) == [0, 1, 2, 3] and others[3].origin != "other plan"
-    turned = start.elsewhere(problem, MemeticSettings(population=8), np.random.default_rng(0), lambda z: z, best, 2)
-    assert [ind.origin for ind in turned[:6]] == ["other plan"] * 6 and len(turned) == 8
-    for a, b in zip(turned[:6:2], turned[1:6:2]):  # each plan at its yaw, then at the half turn
-        assert np.array_equal(a.z[: problem.n_shape], b.z[: problem.n_shape])
-        assert abs(np.angle(np.exp(1j * (b.z[problem.n_shape] - a.z[problem.n_shape])))) == pytest.approx(np.pi)
-    assert [a.z[: problem.n_shape].tolist() for a in turned[:6:2]] == [o.z[: problem.n_shape].tolist() for o in others[:3]]
 
     class Stop(Exception):
         pass
