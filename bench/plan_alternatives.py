@@ -5,9 +5,11 @@ For a workflow run's fit (``ROOT/results/reconstruct/diff_1v/CASE/s0``) every ot
 (rectangle, L, T, U, each with and without the annex) is laid over the extent the fit covers
 (:func:`laid`); each, and the fit itself, gets ``--steps`` Adam steps at 128 px, and all are scored
 at 256 px over two fixed render seeds, with the input view's IoU and the 64-view world IoU (128 px)
-of the fit and of the best alternative. Prints one line a case.
+of the fit and of the best alternative. ``--truth``: the case's own parameters and pose (an
+in-family case's ``ground_truth.json``) get the same steps and scores, which tells a loss the
+search never reached from one the view does not show. Prints one line a case.
 
-    .venv/bin/python bench/plan_alternatives.py ROOT CASE [--seed 0] [--steps 90]
+    .venv/bin/python bench/plan_alternatives.py ROOT CASE [--seed 0] [--steps 90] [--truth]
 
 One case a process: every plan compiles programs of its own, and a process that fits many
 buildings' plans runs out of the compiler's code memory.
@@ -65,6 +67,17 @@ def laid(p: dict, plan: int, annex: int) -> tuple[dict, np.ndarray]:
     return q, np.array([(x0 + x1 - n0 - n1) / 2, 0.0, (z0 + z1 - m0 - m1) / 2])
 
 
+def truth_fit(case_root: Path) -> dict:
+    """A synthesised in-family case's ground truth (``ground_truth.json``) as a params.json's
+    ``params`` and ``pose`` (upright, as the synthesis places it)."""
+    truth = json.loads((case_root / "ground_truth.json").read_text())
+    if "params" not in truth.get("source", {}):
+        raise SystemExit(f"{case_root.name} has no generator parameters: --truth needs an in-family case")
+    pose = truth["pose"]
+    return {"params": truth["source"]["params"], "pose": {"yaw": float(np.radians(pose["yaw_deg"])), "tilt_x": 0.0,
+            "tilt_z": 0.0, "translation": pose["translation"], "scale": pose["scale"]}}
+
+
 def fitted_z(problem, fit: dict) -> np.ndarray:
     """The search vector of a known-camera fit's params.json (``Problem.decode`` inverted)."""
     n, spec, pose = problem.n_shape, problem.spec, fit["pose"]
@@ -82,6 +95,7 @@ def main() -> None:
     ap.add_argument("case")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, default=90)
+    ap.add_argument("--truth", action="store_true", help="also the case's own parameters and pose")
     args = ap.parse_args()
     import trimesh
 
@@ -106,21 +120,23 @@ def main() -> None:
     steps, score = Objective(problem, views, 128, lod, prof.objective), scorer(
         Objective(problem, views, 256, lod, prof.objective), (10_005, 10_006))
     own = (int(round(fit["params"]["template"])), int(round(fit["params"]["annex"])))
-    rows = []
-    for plan in range(len(PLANS)):
-        for annex in (0, 1):
-            start = z.copy()
-            if (plan, annex) != own:
-                q, move = laid(fit["params"], plan, annex)
-                start[:n] = spec.to_unit(spec.clip(spec.from_dict(q)))
-                ends = problem.to_world(start)(np.stack([np.zeros(3), move]))
-                start[n + 3:n + 6] += (ends[1] - ends[0]) / problem.anchor_s
-                start = problem.clip(start)
-            ind = Individual(start, problem.key(start), "plan", lr=prof.memetic.lr * 0.4)
-            adam_steps(ind, args.steps, steps, problem.clip, prof.memetic.reject_ratio, lambda _: None)
-            best = ind.z if ind.best_z is None else ind.best_z
-            rows.append({"plan": PLANS[plan] + (" + annex" if annex else ""), "own": (plan, annex) == own,
-                         "loss": score(best), "input_iou": input_iou(problem, views, best, lod), "z": best})
+    rows, starts = [], [(plan, annex) for plan in range(len(PLANS)) for annex in (0, 1)]
+    for plan, annex in starts + [("truth", None)] * args.truth:
+        start = z.copy()
+        if plan == "truth":
+            start = problem.clip(fitted_z(problem, truth_fit(root / "results" / "synth" / case)))
+        elif (plan, annex) != own:
+            q, move = laid(fit["params"], plan, annex)
+            start[:n] = spec.to_unit(spec.clip(spec.from_dict(q)))
+            ends = problem.to_world(start)(np.stack([np.zeros(3), move]))
+            start[n + 3:n + 6] += (ends[1] - ends[0]) / problem.anchor_s
+            start = problem.clip(start)
+        ind = Individual(start, problem.key(start), "plan", lr=prof.memetic.lr * 0.4)
+        adam_steps(ind, args.steps, steps, problem.clip, prof.memetic.reject_ratio, lambda _: None)
+        best = ind.z if ind.best_z is None else ind.best_z
+        rows.append({"plan": "truth" if plan == "truth" else PLANS[plan] + (" + annex" if annex else ""),
+                     "own": (plan, annex) == own,
+                     "loss": score(best), "input_iou": input_iou(problem, views, best, lod), "z": best})
     reference = trimesh.load(root / "results" / "synth" / case / "reference.ply", force="mesh")
 
     def world_iou(zz):
@@ -128,11 +144,14 @@ def main() -> None:
         return silhouette_iou(reference, trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), 64, 128)["iou_mean"]
 
     mine = next(r for r in rows if r["own"])
-    other = min((r for r in rows if not r["own"]), key=lambda r: r["loss"])
+    other = min((r for r in rows if not r["own"] and r["plan"] != "truth"), key=lambda r: r["loss"])
+    truth = [f"; truth {r['loss'] / mine['loss'] - 1:+.1%} (input view {r['input_iou']:.3f}, world "
+             f"{world_iou(r['z']):.3f})" for r in rows if r["plan"] == "truth"]
     print(f"{case}: fit {mine['plan']} loss {mine['loss']:.5f} (input view {mine['input_iou']:.3f}, world "
           f"{world_iou(mine['z']):.3f}); best other {other['plan']} {other['loss'] / mine['loss'] - 1:+.1%} (input "
           f"view {other['input_iou']:.3f}, world {world_iou(other['z']):.3f}); "
-          + ", ".join(f"{r['plan']} {r['loss'] / mine['loss'] - 1:+.0%}" for r in rows if not r["own"]), flush=True)
+          + ", ".join(f"{r['plan']} {r['loss'] / mine['loss'] - 1:+.0%}" for r in rows
+                      if not r["own"] and r["plan"] != "truth") + "".join(truth), flush=True)
 
 
 if __name__ == "__main__":

@@ -215,3 +215,30 @@ def test_plan_alternatives_lay_every_plan_over_the_fit_s_extent(rng):
                 np.testing.assert_allclose([n0 + move[0], n1 + move[0], m0 + move[2], m1 + move[2]], [x0, x1, z0, z1],
                                            atol=1e-12)
                 assert n1 - n0 == pytest.approx(x1 - x0) and m1 - m0 == pytest.approx(z1 - z0)
+
+
+@pytest.mark.slow
+def test_plan_alternatives_start_the_truth_where_the_synthesis_put_it(mitsuba_cpu, tmp_path_factory, tmp_path):
+    """``--truth``: a synthesised building's parameters and pose as a search vector decode back to
+    themselves; a case made without a generator's parameters is one clear error."""
+    import json
+
+    from ipm.generators import get_generator
+    from ipm.io.views import load_views
+    from ipm.problem import Problem
+    from tests.conftest import synthesized
+
+    bench = _script("plan_alternatives")
+    case = synthesized(tmp_path_factory, "building_1", n_views=1, res=32, spp=1)
+    gen = get_generator("buildings")
+    problem = Problem.for_views(gen, load_views(case / "transforms.json"))
+    truth = bench.truth_fit(case)
+    back = problem.decode(problem.clip(bench.fitted_z(problem, truth)))
+    np.testing.assert_allclose(gen.spec.from_dict(back["params"]), gen.spec.from_dict(truth["params"]), atol=1e-9)
+    pose, want = back["pose"], json.loads((case / "ground_truth.json").read_text())["pose"]
+    assert np.degrees(pose["yaw"]) == pytest.approx(want["yaw_deg"]) and pose["tilt_x"] == pose["tilt_z"] == 0.0
+    np.testing.assert_allclose(pose["translation"], want["translation"], atol=1e-9)
+    assert pose["scale"] == pytest.approx(want["scale"])
+    (tmp_path / "ground_truth.json").write_text(json.dumps({"source": {"recipe": "independent code"}, "pose": want}))
+    with pytest.raises(SystemExit, match="no generator parameters"):
+        bench.truth_fit(tmp_path)
