@@ -117,7 +117,7 @@ def test_compile_profile_adds_up_processes_by_program_and_test():
                                      ["compile", "-", None, 0.5, "()"]]}
     out = prof.summarize([worker, job], top=5)
     assert out["processes"] == 2
-    assert out["totals"] == {"cpu_s": 14.0, "compile_s": 8.0, "trace_s": 0.5, "lower_s": 0.2, "read_s": 0.1,
+    assert out["totals"] == {"cpu_s": 14.0, "compile_s": 8.0, "trace_s": 0.5, "lower_s": 0.25, "read_s": 0.1,
                              "hits": 1, "misses": 2}
     assert out["programs"] == [{"program": "jit_fn", "compiles": 2, "seconds": 5.0, "hits": 1},
                                {"program": "jit_inline", "compiles": 3, "seconds": 2.0, "hits": 0},
