@@ -66,8 +66,8 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
     return {"processes": len(processes), "totals": {k: round(v, 3) for k, v in totals.items()},
             "programs": [{"program": name, "compiles": c["compiles"], "seconds": round(c["seconds"], 3),
                           "hits": c["hits"]} for name, c in ranked],
-            "tests": [{"test": t, "seconds": round(s, 1)} for t, s in tests.most_common(top)],
-            "same_shapes": [{"program": name, "shapes": args, "compiles": c["compiles"], "seconds": round(c["seconds"], 1)}
+            "tests": [{"test": t, "seconds": round(s, 3)} for t, s in tests.most_common(top)],
+            "same_shapes": [{"program": name, "shapes": args, "compiles": c["compiles"], "seconds": round(c["seconds"], 3)}
                             for (name, args), c in again]}
 
 

@@ -120,23 +120,28 @@ def main() -> None:
     steps, score = Objective(problem, views, 128, lod, prof.objective), scorer(
         Objective(problem, views, 256, lod, prof.objective), (10_005, 10_006))
     own = (int(round(fit["params"]["template"])), int(round(fit["params"]["annex"])))
-    rows, starts = [], [(plan, annex) for plan in range(len(PLANS)) for annex in (0, 1)]
-    for plan, annex in starts + [("truth", None)] * args.truth:
-        start = z.copy()
-        if plan == "truth":
-            start = problem.clip(fitted_z(problem, truth_fit(root / "results" / "synth" / case)))
-        elif (plan, annex) != own:
-            q, move = laid(fit["params"], plan, annex)
-            start[:n] = spec.to_unit(spec.clip(spec.from_dict(q)))
-            ends = problem.to_world(start)(np.stack([np.zeros(3), move]))
-            start[n + 3:n + 6] += (ends[1] - ends[0]) / problem.anchor_s
-            start = problem.clip(start)
+    truth = truth_fit(root / "results" / "synth" / case) if args.truth else None  # read before the fits
+
+    def settled(start: np.ndarray, plan: str, is_own: bool) -> dict:
+        """``start`` after the Adam steps, with its loss and input-view IoU."""
         ind = Individual(start, problem.key(start), "plan", lr=prof.memetic.lr * 0.4)
         adam_steps(ind, args.steps, steps, problem.clip, prof.memetic.reject_ratio, lambda _: None)
         best = ind.z if ind.best_z is None else ind.best_z
-        rows.append({"plan": "truth" if plan == "truth" else PLANS[plan] + (" + annex" if annex else ""),
-                     "own": (plan, annex) == own,
-                     "loss": score(best), "input_iou": input_iou(problem, views, best, lod), "z": best})
+        return {"plan": plan, "own": is_own, "loss": score(best), "input_iou": input_iou(problem, views, best, lod),
+                "z": best}
+
+    rows = []
+    for plan in range(len(PLANS)):
+        for annex in (0, 1):
+            start = z.copy()
+            if (plan, annex) != own:
+                q, move = laid(fit["params"], plan, annex)
+                start[:n] = spec.to_unit(spec.clip(spec.from_dict(q)))
+                ends = problem.to_world(start)(np.stack([np.zeros(3), move]))
+                start[n + 3:n + 6] += (ends[1] - ends[0]) / problem.anchor_s
+                start = problem.clip(start)
+            rows.append(settled(start, PLANS[plan] + (" + annex" if annex else ""), (plan, annex) == own))
+    truths = [] if truth is None else [settled(problem.clip(fitted_z(problem, truth)), "truth", False)]
     reference = trimesh.load(root / "results" / "synth" / case / "reference.ply", force="mesh")
 
     def world_iou(zz):
@@ -144,14 +149,14 @@ def main() -> None:
         return silhouette_iou(reference, trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), 64, 128)["iou_mean"]
 
     mine = next(r for r in rows if r["own"])
-    other = min((r for r in rows if not r["own"] and r["plan"] != "truth"), key=lambda r: r["loss"])
-    truth = [f"; truth {r['loss'] / mine['loss'] - 1:+.1%} (input view {r['input_iou']:.3f}, world "
-             f"{world_iou(r['z']):.3f})" for r in rows if r["plan"] == "truth"]
+    other = min((r for r in rows if not r["own"]), key=lambda r: r["loss"])
+    said = "".join(f"; truth {r['loss'] / mine['loss'] - 1:+.1%} (input view {r['input_iou']:.3f}, world "
+                   f"{world_iou(r['z']):.3f})" for r in truths)
     print(f"{case}: fit {mine['plan']} loss {mine['loss']:.5f} (input view {mine['input_iou']:.3f}, world "
           f"{world_iou(mine['z']):.3f}); best other {other['plan']} {other['loss'] / mine['loss'] - 1:+.1%} (input "
           f"view {other['input_iou']:.3f}, world {world_iou(other['z']):.3f}); "
-          + ", ".join(f"{r['plan']} {r['loss'] / mine['loss'] - 1:+.0%}" for r in rows
-                      if not r["own"] and r["plan"] != "truth") + "".join(truth), flush=True)
+          + ", ".join(f"{r['plan']} {r['loss'] / mine['loss'] - 1:+.0%}" for r in rows if not r["own"]) + said,
+          flush=True)
 
 
 if __name__ == "__main__":

@@ -125,7 +125,7 @@ def test_compile_profile_adds_up_processes_by_program_and_test():
     # the same shapes compiled twice (a budget baked in); records without shapes or a name are left out
     assert out["same_shapes"] == [{"program": "jit_inline", "shapes": "(f32[4])", "compiles": 2, "seconds": 1.5}]
     assert out["tests"] == [{"test": "t::a", "seconds": 5.5}, {"test": "-", "seconds": 3.0},
-                            {"test": "t::b", "seconds": 0.2}]
+                            {"test": "t::b", "seconds": 0.25}]
     assert "| jit_fn | 2 | 5.0 | 1 |" in prof.markdown(out) and "| jit_inline (f32[4]) | 2 | 1.5 |" in prof.markdown(out)
 
 
