@@ -19,6 +19,9 @@ from ipm.runtime import configure_threads  # noqa: E402
 THREADS = max(1, min(2, len(os.sched_getaffinity(0)) // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
 """Threads of a test process: 2, or its share of the CPUs where test workers run side by side."""
 
+_AS_THE_PACKAGE = "IPM_TEST_AS_THE_PACKAGE"
+"""Set to 1 in the processes :func:`as_the_package` starts, whose XLA flags the package chose."""
+
 TEST_COMPILE = "--xla_backend_optimization_level=0"
 """XLA's CPU programs built without LLVM's optimization passes, for the tests only: most tests compile
 more than they run, and those passes are most of a compile (docs/decisions.md, 'Compile flag')."""
@@ -27,9 +30,10 @@ more than they run, and those passes are most of a compile (docs/decisions.md, '
 # and TEST_COMPILE here and, through XLA_FLAGS, in every process the tests start; the package uses the
 # first for its diff fits, where compiling is much of a fit too. The tests check behaviour and
 # tolerances, which neither flag moves.
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{TEST_COMPILE} {os.environ.get('XLA_FLAGS', '')}".strip()
-configure_threads(THREADS, quick_compile=True)
+if os.environ.get(_AS_THE_PACKAGE) != "1":
+    if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = f"{TEST_COMPILE} {os.environ.get('XLA_FLAGS', '')}".strip()
+    configure_threads(THREADS, quick_compile=True)
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
@@ -133,6 +137,37 @@ def part_volumes(mesh) -> np.ndarray:
     part = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
     tri = np.asarray(mesh.vertices, float)[mesh.faces]
     return np.bincount(part, np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0)
+
+
+def package_env() -> dict:
+    """This process's environment for a process whose XLA flags the package chooses (no
+    ``XLA_FLAGS``, and this module leaves them alone there)."""
+    return {**{k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}, _AS_THE_PACKAGE: "1"}
+
+
+def as_the_package(target: str, *args, quick_compile: bool = False, **kwargs):
+    """``target`` ("module:function") called with ``args`` and ``kwargs`` in a fresh process whose
+    programs XLA compiles with the package's flags, not :data:`TEST_COMPILE` (``quick_compile`` as
+    for the diff fits, else as for the trainings), and what it returns, pickled back: for a check
+    that needs the package's rounding, or programs that run far longer than they compile (a
+    training's unoptimized steps ran a fifth longer, 76 s against 63 s for the occupancy network's)."""
+    import pickle
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import importlib, pickle, sys; from ipm.runtime import configure_threads; "
+            "t, a, k, n, q = pickle.loads(open(sys.argv[1], 'rb').read()); configure_threads(n, quick_compile=q); "
+            "m, f = t.split(':'); r = getattr(importlib.import_module(m), f)(*a, **k); "
+            "open(sys.argv[2], 'wb').write(pickle.dumps(r))")
+    env = package_env()
+    with tempfile.TemporaryDirectory() as tmp:
+        call, result = Path(tmp) / "call.pkl", Path(tmp) / "result.pkl"
+        call.write_bytes(pickle.dumps((target, args, kwargs, THREADS, quick_compile)))
+        res = subprocess.run([sys.executable, "-c", code, str(call), str(result)], cwd=Path(__file__).parents[1],
+                             env=env, capture_output=True, text=True, timeout=1200)
+        assert res.returncode == 0, res.stderr[-3000:]
+        return pickle.loads(result.read_bytes())
 
 
 def synthesized(tmp_path_factory, case: str, n_views: int, res: int, spp: int):

@@ -12,7 +12,7 @@ from ipm.io.views import Views
 from ipm.learned.data import (TRAIN_SEED_BASE, crop_box, draw_sample, encode_view, make_dataset, sample_lod,
                               targets)
 from ipm.problem import Problem
-from tests.conftest import slow_except
+from tests.conftest import as_the_package, slow_except
 
 
 def _views(sample) -> Views:
@@ -97,16 +97,22 @@ def trained(tmp_path_factory):
     """A regressor for the cups trained on a small set (it must beat the mean prediction on
     held-out samples), saved as the workflow saves it."""
     from ipm.learned.network import save
-    from ipm.learned.train import TrainSettings, fit
+    from ipm.learned.train import TrainSettings
 
-    gen = get_generator("dishes")
     # 1,000 steps: at 500 the discrete accuracy sat at the most frequent values' (0.475 against
     # 0.492 on one AVX-512 CPU, above it on another); at 1,000 it is 0.62 against 0.49
     settings = TrainSettings(samples=480, held_out=120, steps=1000, batch=32, learning_rate=2e-3)
-    model, meta = fit(gen, settings, seed=0)
+    model, meta = as_the_package("tests.test_learned:train_cups", settings)  # as the preparation stage trains
     path = tmp_path_factory.mktemp("learned") / "dishes.json"
     save(model, path, meta)
     return model, meta, path
+
+
+def train_cups(settings):
+    """A regressor for the cups trained with ``settings`` and seed 0, and its metadata."""
+    from ipm.learned.train import fit
+
+    return fit(get_generator("dishes"), settings, seed=0)
 
 
 @pytest.mark.slow

@@ -12,6 +12,7 @@ from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.learned.data import draw_sample
 from ipm.methods import METHODS, resolve
+from tests.conftest import as_the_package
 
 
 @pytest.mark.parametrize("name", ["dishes", "buildings"])
@@ -92,6 +93,11 @@ def test_the_smoke_run_trained_in_it(cup, tmp_path):
     assert len(mesh.faces) > 20 and lo[1] > -0.2 and hi[1] < 1.5  # near the cup (0.9 high, on y = 0)
 
 
+def train_buildings(settings):
+    """An occupancy network for the buildings trained with ``settings`` and seed 0, and its metadata."""
+    return fit(get_generator("buildings"), settings, seed=0)
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """An occupancy network for the buildings from a few hundred samples and steps, saved as the
@@ -101,7 +107,7 @@ def trained(tmp_path_factory):
 
     settings = OccnetSettings(samples=300, held_out=60, points=512, batch=16, batch_points=256, steps=400,
                               learning_rate=2e-3, mesh_grid=48)
-    model, meta = fit(get_generator("buildings"), settings, seed=0)
+    model, meta = as_the_package("tests.test_occnet:train_buildings", settings)  # as the preparation stage trains
     path = tmp_path_factory.mktemp("occnet_weights") / "buildings.json"
     save(model, path, meta)
     return model, meta, path

@@ -15,7 +15,7 @@ from ipm.problem import Problem
 from ipm.render.cameras import orbit_camera
 from ipm.render.edges import EdgeRenderer
 from ipm.render.silhouette import SilhouetteRenderer
-from tests.conftest import slow_except
+from tests.conftest import as_the_package, slow_except
 
 FOV = 0.7
 POSE = ("yaw", "tilt_x", "tilt_z", "dx", "dy", "dz", "log_scale")
@@ -238,18 +238,7 @@ def test_back_faces_culled_on_closed_solids_change_nothing_but_the_work():
     tests' ``TEST_COMPILE``: drawn with its back faces, a closed solid's coincident front and back
     edges meet in ties that the rounding of unoptimized programs settles otherwise, 2 % of the
     gradient, where the culled drawing does not move)."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from ipm.runtime import QUICK_COMPILE
-
-    env = {**os.environ, "XLA_FLAGS": f"{QUICK_COMPILE} --xla_backend_optimization_level=3"}
-    code = "from tests.test_render_edges import culling_changes_nothing_but_the_work as f; f()"
-    res = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[1], env=env,
-                         capture_output=True, text=True, timeout=1200)
-    assert res.returncode == 0, res.stderr[-3000:]
+    as_the_package("tests.test_render_edges:culling_changes_nothing_but_the_work", quick_compile=True)
 
 
 def culling_changes_nothing_but_the_work():
