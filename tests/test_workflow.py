@@ -119,11 +119,9 @@ def test_other_seeds_of_a_compiling_method_wait_for_the_first(tmp_path):
 @pytest.mark.slow
 def test_a_mask_row_reads_its_views_with_degraded_masks(tmp_path):
     """A methods entry with a ``mask`` reads a copy of its views whose masks a ``degrade_masks``
-    job degraded, under its own row id, after the row on the true masks (whose programs it reads);
-    an unknown degradation is refused when the DAG is built."""
+    job degraded, under its own row id; an unknown degradation is refused when the DAG is built."""
     rc, out = dry_run(tmp_path, "profile: smoke\ncases: [cup_1]\nmask_seed: 4\nmethods: [{name: diff, views: 1}, "
-                                "{name: diff, views: 1, mask: 'edge +2 px'}, {name: diffsdf, views: 2}, "
-                                "{name: diffsdf, views: 2, mask: 'edge +2 px'}]\n")
+                                "{name: diff, views: 1, mask: 'edge +2 px'}]\n")
     assert rc == 0, out[-3000:]
     job = out[out.index("rule degrade_masks:"):]
     assert "input: results/synth/cup_1/hemi1\n" in job and "output: results/synth/cup_1/hemi1_maskedgep2px" in job
@@ -133,8 +131,6 @@ def test_a_mask_row_reads_its_views_with_degraded_masks(tmp_path):
         runs[fields["output"]] = fields["input"]
     assert runs["results/reconstruct/diff_1v_maskedgep2px/cup_1/s0"].startswith("results/synth/cup_1/hemi1_maskedgep2px")
     assert runs["results/reconstruct/diff_1v/cup_1/s0"].startswith("results/synth/cup_1/hemi1,")
-    assert "results/reconstruct/diff_1v/cup_1/s0" in runs["results/reconstruct/diff_1v_maskedgep2px/cup_1/s0"].split(", ")
-    assert "results/reconstruct" not in runs["results/reconstruct/diffsdf_2v_maskedgep2px/cup_1/s0"]  # compiles none
     rc, out = dry_run(tmp_path, "profile: smoke\ncases: [cup_1]\nmethods: [{name: diff, views: 1, mask: blur}]\n")
     assert rc != 0 and "unknown mask degradation 'blur'" in out
 

@@ -171,33 +171,17 @@ def method_inputs(wildcards):
     per generator and seed, so the spread over seeds includes theirs; with ``prepare_seed`` set, one
     file made with that seed serves every seed). For a method that compiles its programs per case
     (``Method.compiles``), a seed other than the case's first also waits for the first seed's run,
-    then reads them from JAX's cache, and so does the first seed of a row on degraded masks, for
-    the first seed of its row on the true masks (the same images, the same programs); ``ancient``:
-    a rerun of that first run alone reruns no other."""
+    then reads them from JAX's cache; ``ancient``: a rerun of the first seed alone reruns no other."""
     m = method_of(wildcards)
     out = {"views": method_views_dir(wildcards)}
     first = method_seeds(m, wildcards.case)[0]
     if METHODS[m["name"]].compiles and int(wildcards.seed) != first:
         out["first_seed"] = ancient(f"results/reconstruct/{wildcards.row}/{wildcards.case}/s{first}")
-    elif METHODS[m["name"]].compiles and m.get("mask"):
-        plain = true_masks_entry(m)
-        if plain is not None and wildcards.case in method_cases(plain):
-            seed = method_seeds(plain, wildcards.case)[0]
-            out["true_masks_run"] = ancient(f"results/reconstruct/{row_id(plain)}/{wildcards.case}/s{seed}")
     stage = preparation(m)
     if stage is not None:
         seed = wildcards.seed if config["prepare_seed"] is None else config["prepare_seed"]
         out["prepared"] = prepared_file(stage, case_generator(wildcards), seed)
     return out
-
-
-def true_masks_entry(m):
-    """The methods entry that a row on degraded masks (``m``) degrades: the same method, views,
-    tag and settings on the true masks; None where the config has none."""
-    for other in config["methods"]:
-        if not other.get("mask") and all(other.get(k) == m.get(k) for k in ("name", "views", "tag", "settings")):
-            return other
-    return None
 
 
 def prepared_file(stage, generator, seed):
