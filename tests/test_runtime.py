@@ -29,11 +29,11 @@ def _cpu_and_wall(args: list[str], env: dict) -> tuple[float, float]:
 
 @pytest.mark.slow
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs 2 CPUs to see a job take more than one")
-@pytest.mark.parametrize("command, as_the_package", [
+@pytest.mark.parametrize("command, package_flags", [
     (["reconstruct", "--generator", "dishes", "--profile", "smoke"], False),  # Mitsuba (Dr.Jit) and a JAX generator
     (["baseline", "diffsdf", "--profile", "default", "--n-input-views", "2"], True),  # JAX (XLA) heavy
 ], ids=["diff", "diffsdf"])
-def test_a_one_thread_job_keeps_one_core_busy(command, as_the_package, tiny_case, tmp_path):
+def test_a_one_thread_job_keeps_one_core_busy(command, package_flags, tiny_case, tmp_path):
     """Measured on the job's second run, its programs read from the compilation cache: XLA's
     compiler pipelines a program's emission and its machine code on two threads whatever the
     job's thread count (8-9 % of a cold smoke fit's wall time had both running), and how much a
@@ -44,7 +44,7 @@ def test_a_one_thread_job_keeps_one_core_busy(command, as_the_package, tiny_case
     unoptimized programs ran twice as long as the package's (two runs 93 s against 45 s, alone)."""
     ipm = [sys.executable, "-m", "ipm.cli"]
     args = [*ipm, *command, "--views", str(Path(tiny_case) / "transforms.json"), "--threads", "1", "--quiet"]
-    env = package_env() if as_the_package else dict(os.environ)
+    env = package_env() if package_flags else dict(os.environ)
     _cpu_and_wall([*args, "--out", str(tmp_path / "first")], env)
     cpu, wall = _cpu_and_wall([*args, "--out", str(tmp_path / "out")], env)
     assert cpu <= CPU_OVER_WALL * wall, f"{cpu:.1f} s CPU in {wall:.1f} s wall"
