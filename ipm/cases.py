@@ -18,11 +18,30 @@ from __future__ import annotations
 
 import json
 import sys
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from ipm.errors import UserError
+
+
+def list_cases() -> list[str]:
+    """The names of the case files in ``datasets_synthetic``, sorted."""
+    return sorted(p.name[:-5] for p in resources.files("datasets_synthetic").iterdir()
+                  if p.name.endswith(".json"))
+
+
+def load_case(name: str) -> dict:
+    """The case definition ``datasets_synthetic/NAME.json`` (``UserError`` if unknown)."""
+    path = resources.files("datasets_synthetic") / f"{name}.json"
+    if not path.is_file():
+        raise UserError(f"unknown case {name!r} (known: {', '.join(list_cases())})")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"malformed case file {name}.json: {exc}") from None
+
 
 SPLITS = ("dev", "test")
 MIN_PRESET_DISTANCE = 0.3
@@ -188,7 +207,7 @@ def describe_cases(split: str | None = None) -> str:
     """One line per case (``ipm cases``): name, split, generator, family (in: made by the generator,
     with its distance to the nearest preset; out: the recipe that built it), input elevation and
     field of view."""
-    from ipm.synth import case_fov, list_cases, load_case
+    from ipm.synth import case_fov
 
     lines = [f"{'case':14} {'split':5} {'generator':9} {'family':34} elevation  fov"]
     for name in list_cases():
@@ -213,7 +232,6 @@ def expand_groups(config: dict) -> dict:
     names lists of cases or of other groups, and a group's name in ``cases`` or in a methods
     entry's ``cases`` stands for its cases, in order, each case once (``ValueError`` for a group
     named like a case or one that contains itself)."""
-    from ipm.synth import list_cases
 
     groups = config.get("groups") or {}
     clash = sorted(set(groups) & set(list_cases()))

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import json
 import zlib
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from ipm.cases import list_cases, load_case  # noqa: F401  (list_cases: read from here too)
 from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, save_ply, write_json
@@ -30,22 +30,6 @@ from ipm.uv import corners_from_vertices
 FOV_X = 0.6911
 """Horizontal field of view of the reference cameras (radians), as in instant-ngp's examples,
 unless the case gives its own (``camera.fov_deg``)."""
-
-
-def list_cases() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("datasets_synthetic").iterdir()
-                  if p.name.endswith(".json"))
-
-
-def load_case(name: str) -> dict:
-    """The case definition ``datasets_synthetic/NAME.json`` (``UserError`` if unknown)."""
-    path = resources.files("datasets_synthetic") / f"{name}.json"
-    if not path.is_file():
-        raise UserError(f"unknown case {name!r} (known: {', '.join(list_cases())})")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"malformed case file {name}.json: {exc}") from None
 
 
 def case_fov(case: dict) -> float:

@@ -106,8 +106,7 @@ def _row(metrics_path: Path) -> dict:
 
 def _family(case: str) -> str:
     """``in`` or ``out`` of its generator's family (``ipm.cases.case_family``)."""
-    from ipm.cases import case_family
-    from ipm.synth import load_case
+    from ipm.cases import case_family, load_case
 
     return case_family(load_case(case))
 

@@ -1,10 +1,27 @@
-"""Reading and writing the project's files: views (transforms.json), meshes, atomic outputs."""
-from ipm.io.atomic import atomic_dir, atomic_path, write_json
-from ipm.io.mesh import load_mesh, part_labels, save_glb, save_ply
-from ipm.io.paths import shown_path
-from ipm.io.views import Views, load_views, write_views
+"""Reading and writing the project's files: views (transforms.json), meshes, atomic outputs.
 
-__all__ = [
-    "Views", "atomic_dir", "atomic_path", "load_mesh", "load_views", "part_labels", "save_glb", "save_ply",
-    "shown_path", "write_json", "write_views",
-]
+The names below are loaded from their modules on first use, so that a process writing a JSON file
+(``ipm.io.atomic``) or reading views does not import the mesh libraries (trimesh, a second of
+every job's start)."""
+from importlib import import_module
+
+_WHERE = {
+    "atomic_dir": "atomic", "atomic_path": "atomic", "write_json": "atomic",
+    "load_mesh": "mesh", "part_labels": "mesh", "save_glb": "mesh", "save_ply": "mesh",
+    "shown_path": "paths",
+    "Views": "views", "load_views": "views", "write_views": "views",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'ipm.io' has no attribute {name!r}")
+    value = getattr(import_module(f"ipm.io.{_WHERE[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_WHERE))

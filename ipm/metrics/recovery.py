@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .align import yaw_matrix
+from ipm.pose import yaw_matrix
 
 RECOVERY_COLUMNS = ("param_err", "param_err_max", "discrete_match", "counts_exact", "yaw_err_deg", "trans_err_rel",
                     "size_err_pct")

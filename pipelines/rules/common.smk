@@ -37,7 +37,7 @@ def method_cases(m):
 def case_seeds(case):
     """Seeds of a case: its split's ``split_seeds`` entry, else the config's ``seeds``."""
     from ipm.cases import case_split
-    from ipm.synth import load_case
+    from ipm.cases import load_case
 
     return config["split_seeds"].get(case_split(load_case(case)), config["seeds"])
 
@@ -58,7 +58,7 @@ def check_methods():
     """
     from ipm.errors import UserError
     from ipm.methods import check_generator
-    from ipm.synth import load_case
+    from ipm.cases import load_case
 
     from ipm.cases import case_split
 
@@ -126,7 +126,7 @@ def method_views(wildcards):
 
 def case_generator(wildcards):
     """The generator that reconstructs a case (its 'generator' field)."""
-    from ipm.synth import load_case
+    from ipm.cases import load_case
 
     return load_case(wildcards.case)["generator"]
 
@@ -259,7 +259,7 @@ def input_view_dirs():
 
 def line_applies(name, case):
     """Whether reference line ``name`` applies to ``case`` (the reseeded truth: stochastic in-family cases)."""
-    from ipm.synth import load_case
+    from ipm.cases import load_case
 
     return REFERENCE_LINES[name].applies(load_case(case))
 
