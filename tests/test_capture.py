@@ -168,16 +168,14 @@ def test_colmap_input_problems_are_clear(tmp_path, cup_views, problem, match):
 @pytest.mark.slow
 def test_z_up_and_colmap_inputs_reconstruct(tmp_path, cup_views):
     """Smoke profile through the command line: a z-up transforms.json with --up z and a COLMAP
-    model; the params say how to take the mesh back to the input's world. The GA fits them: the
-    input is read and turned before any method sees it (``ipm.capture``), and the GA compiles no
-    programs."""
+    model; the params say how to take the mesh back to the input's world."""
     m = _colmap_model(cup_views, tmp_path / "colmap")
     runs = {"z_up": ["--views", str(_z_up_file(cup_views, tmp_path / "zup")), "--up", "z"],
             "colmap": ["--colmap", str(m / "sparse"), "--images", str(m / "images"), "--masks", str(m / "masks")]}
     for name, args in runs.items():
         out = tmp_path / f"out_{name}"
-        res = ipm("reconstruct", "--method", "ga", "--generator", "dishes", *args, "--out", str(out), "--profile",
-                  "smoke", "--n-input-views", "2", "--quiet", "--threads", "2")
+        res = ipm("reconstruct", "--generator", "dishes", *args, "--out", str(out), "--profile", "smoke",
+                  "--n-input-views", "2", "--quiet", "--threads", "2")
         assert res.returncode == 0, res.stderr
         info = json.loads((out / "params.json").read_text())
         back = np.asarray(info["world_from_input"])
@@ -212,7 +210,7 @@ def test_a_nerfstudio_file_with_alpha_masks_reconstructs(tmp_path, cup_views):
     np.testing.assert_array_equal(views.masks, truth.masks)
     assert views.fov_x == pytest.approx(truth.fov_x) and views.width == truth.width
     out = tmp_path / "out"
-    res = ipm("reconstruct", "--method", "ga", "--generator", "dishes", "--views", str(tmp_path / "transforms.json"),
-              "--out", str(out), "--profile", "smoke", "--quiet", "--threads", "2")  # as above: the reading, not the fit
+    res = ipm("reconstruct", "--generator", "dishes", "--views", str(tmp_path / "transforms.json"), "--out", str(out),
+              "--profile", "smoke", "--quiet", "--threads", "2")
     assert res.returncode == 0, res.stderr
     assert (out / "mesh.glb").is_file() and "world_from_input" not in json.loads((out / "params.json").read_text())
