@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ipm.generators.base import Mesh
-from ipm.io import atomic_dir, save_glb, save_ply, write_json
+from ipm.io import atomic_dir, write_json
 from ipm.io.views import save_texture, srgb_bytes
 
 GLB_EXTRAS = ("generator", "params", "pose")
@@ -38,6 +38,8 @@ def write_result(out: str | Path, mesh: Mesh | tuple[np.ndarray, np.ndarray], in
         raise FloatingPointError("the method produced an empty or non-finite mesh")
     times = {"seconds": timing["seconds"], **({"evaluations": int(len(trace))} if trace is not None else {}),
              **{k: v for k, v in timing.items() if k != "seconds"}}
+    from ipm.io.mesh import save_glb, save_ply  # trimesh: only where a result is written
+
     with atomic_dir(out) as tmp:
         save_ply(tmp / "mesh.ply", vertices, faces, mesh.labels if labelled else None)
         if labelled:
