@@ -3,7 +3,7 @@
 The names below are loaded from their modules on first use, so that a process writing a JSON file
 (``ipm.io.atomic``) or reading views does not import the mesh libraries (trimesh, a second of
 every job's start)."""
-from importlib import import_module
+from ipm.io.lazy import lazy_names
 
 _WHERE = {
     "atomic_dir": "atomic", "atomic_path": "atomic", "write_json": "atomic",
@@ -13,15 +13,4 @@ _WHERE = {
 }
 
 __all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str):
-    if name not in _WHERE:
-        raise AttributeError(f"module 'ipm.io' has no attribute {name!r}")
-    value = getattr(import_module(f"ipm.io.{_WHERE[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_WHERE))
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)

@@ -4,7 +4,7 @@ a module of the package (``ipm.metrics.silhouette``'s mask IoU) is read without 
 library (trimesh; absent on the GPU machine)."""
 from __future__ import annotations
 
-from importlib import import_module
+from ipm.io.lazy import lazy_names
 
 _WHERE = {"align_similarity": "align", "shape_iou": "align", "chamfer": "evaluate", "evaluate_meshes": "evaluate",
           "preview_png": "evaluate", "triangle_quality": "evaluate", "fibonacci_cameras": "silhouette",
@@ -13,8 +13,4 @@ _WHERE = {"align_similarity": "align", "shape_iou": "align", "chamfer": "evaluat
 
 __all__ = sorted(_WHERE)
 
-
-def __getattr__(name: str):
-    if name in _WHERE:
-        return getattr(import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)
