@@ -177,7 +177,8 @@ def main() -> None:
     from ipm.methods.ga_options import get_options
     from ipm.optim.ga_settings import get_settings
     from ipm.optim.ga_statistics import GeneStatistics
-    from ipm.synth import load_case, write_reference
+    from ipm.cases import load_case
+    from ipm.synth import write_reference
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

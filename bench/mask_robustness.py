@@ -91,7 +91,8 @@ def main() -> None:
     from ipm.degrade import DEGRADATIONS
     from ipm.io import write_json
     from ipm.runtime import configure_threads, machine_info, set_mitsuba_variant
-    from ipm.synth import load_case, synthesize
+    from ipm.cases import load_case
+    from ipm.synth import synthesize
 
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)

@@ -33,7 +33,8 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask
     (both as its lens draws them)."""
     from ipm.io.views import jpeg_roundtrip, srgb_bytes
-    from ipm.synth import PHOTO_QUALITY, case_cameras, ground_truth_mesh, load_case, photographs
+    from ipm.cases import load_case
+    from ipm.synth import PHOTO_QUALITY, case_cameras, ground_truth_mesh, photographs
 
     spec = load_case(case)
     v, f, labels, uv = ground_truth_mesh(spec)
@@ -48,7 +49,8 @@ def plain_view(case: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
     from ipm.io.views import srgb_bytes
     from ipm.render.silhouette import SilhouetteRenderer
     from ipm.render.textured import render_painted
-    from ipm.synth import case_cameras, ground_truth_mesh, load_case, reference_appearance
+    from ipm.cases import load_case
+    from ipm.synth import case_cameras, ground_truth_mesh, reference_appearance
 
     spec = load_case(case)
     v, f, labels, uv = ground_truth_mesh(spec)
@@ -91,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
     from ipm.runtime import configure_threads, set_mitsuba_variant
     from ipm.learned.segmenter import load
     from ipm.segment import mask_from_image, mask_from_photo
-    from ipm.synth import load_case
+    from ipm.cases import load_case
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="+", default=DEV)

@@ -53,7 +53,7 @@ def one(case: str, work: Path, row: str, n_input: int, seed: int) -> dict:
     from ipm.generators import get_generator
     from ipm.methods import METHODS
     from ipm.metrics.texture import score_result
-    from ipm.synth import load_case
+    from ipm.cases import load_case
 
     out = work / f"{case}_{row}{n_input}v_s{seed}"
     views = ["--views", str(work / case / "hemi" / "transforms.json"), "--n-input-views", str(n_input),
@@ -103,7 +103,8 @@ def truth(case: str, work: Path, n_input: int, passes: int | None = None) -> dic
     cases only: the fill's symmetry is the generator's charts'."""
     from ipm.cases import case_family
     from ipm.errors import UserError
-    from ipm.synth import ground_truth_mesh, load_case
+    from ipm.cases import load_case
+    from ipm.synth import ground_truth_mesh
 
     spec = load_case(case)
     if case_family(spec) != "in":
@@ -126,7 +127,7 @@ def painted(case: str, work: Path, n_input: int, seed: int, mesh: tuple, variant
     from ipm.io.views import load_photos, load_views
     from ipm.metrics.texture import score_renders
     from ipm.render.textured import render_painted
-    from ipm.synth import load_case
+    from ipm.cases import load_case
     from ipm.texture import REFINEMENT, SHADING_PASSES, TEXTURE_RES, paint
 
     gen = get_generator(load_case(case)["generator"])
@@ -211,7 +212,7 @@ def main() -> None:
                      for s in args.seeds for _ in range(args.repeat)]
         if args.truth:  # the cases a generator made (the others' charts have no symmetry to fill by)
             from ipm.cases import case_family
-            from ipm.synth import load_case
+            from ipm.cases import load_case
 
             made = [c for c in args.cases if case_family(load_case(c)) == "in"]
             rows += [truth(c, work, n, p) for c in made for n in args.inputs for p in [None, *args.passes]]

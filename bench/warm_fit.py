@@ -50,7 +50,8 @@ def main() -> None:
 
     configure_threads(args.threads, "cpu")
     set_mitsuba_variant("cpu", args.threads)
-    from ipm.synth import load_case, synthesize
+    from ipm.cases import load_case
+    from ipm.synth import synthesize
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

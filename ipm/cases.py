@@ -232,7 +232,6 @@ def expand_groups(config: dict) -> dict:
     names lists of cases or of other groups, and a group's name in ``cases`` or in a methods
     entry's ``cases`` stands for its cases, in order, each case once (``ValueError`` for a group
     named like a case or one that contains itself)."""
-
     groups = config.get("groups") or {}
     clash = sorted(set(groups) & set(list_cases()))
     if clash:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ipm.cases import list_cases, load_case  # noqa: F401  (list_cases: read from here too)
+from ipm.cases import load_case
 from ipm.errors import UserError
 from ipm.generators import get_generator
 from ipm.io import atomic_dir, save_ply, write_json

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 
 from ipm.cases import ELEVATION_RANGE, FOV_RANGE, MIN_PRESET_DISTANCE, SAMPLED, case_split, preset_distances
-from ipm.cases import case_family, sample_case, unit_distance
+from ipm.cases import case_family, list_cases, load_case, sample_case, unit_distance
 from ipm.errors import UserError
 from ipm.generators import GENERATORS, get_generator
 from ipm.metrics.recovery import facade_match, parameter_recovery, seen_counts, true_parameters
-from ipm.synth import list_cases, load_case
 from tests.conftest import slow_except
 
 

@@ -103,7 +103,8 @@ def test_semantic_images_are_checked(tmp_path, tree_case):
 @pytest.mark.slow
 def test_space_colonisation_tree_stands_with_both_parts():
     from datasets_synthetic.recipes import RECIPES
-    from ipm.synth import ground_truth_mesh, is_tree_case, load_case
+    from ipm.cases import load_case
+    from ipm.synth import ground_truth_mesh, is_tree_case
 
     case = load_case("tree_ext")
     assert case["generator"] == "trees" and is_tree_case(case) and not is_tree_case(load_case("cup_ext"))

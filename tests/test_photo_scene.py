@@ -109,7 +109,8 @@ def test_a_distorted_photo_case_writes_its_lens_and_reads_back_as_its_pinhole_tw
     from ipm.io.views import load_views
     from ipm.metrics.silhouette import view_ious
     from ipm.render.silhouette import SilhouetteRenderer
-    from ipm.synth import PHOTO_DISTORTION, ground_truth_mesh, load_case, photo_setting
+    from ipm.cases import load_case
+    from ipm.synth import PHOTO_DISTORTION, ground_truth_mesh, photo_setting
 
     share = photo_setting("cup_1")["distortion"]
     assert PHOTO_DISTORTION[0] <= share <= PHOTO_DISTORTION[1]

@@ -13,7 +13,8 @@ from ipm.io import load_mesh, load_views
 from ipm.methods import METHODS
 from ipm.metrics import silhouette_iou
 from ipm.problem import Problem, estimate_anchor, length_room
-from ipm.synth import ground_truth_mesh, load_case
+from ipm.cases import load_case
+from ipm.synth import ground_truth_mesh
 from tests.conftest import THREADS, slow_except
 
 

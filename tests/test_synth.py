@@ -10,7 +10,8 @@ import trimesh
 from ipm.errors import UserError
 from ipm.io import load_mesh, load_views
 from ipm.metrics import raycast_masks
-from ipm.synth import ground_truth_mesh, list_cases, load_case
+from ipm.cases import list_cases, load_case
+from ipm.synth import ground_truth_mesh
 from tests.conftest import part_volumes, slow_except, synthesized
 
 

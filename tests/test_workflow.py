@@ -331,7 +331,7 @@ def test_the_benchmark_config_runs_every_case():
     names cases, covers every case of its generator's class that the row's method can run."""
     import yaml
 
-    from ipm.synth import list_cases, load_case
+    from ipm.cases import list_cases, load_case
 
     from ipm.cases import expand_groups
 

@@ -36,8 +36,7 @@ def method_cases(m):
 
 def case_seeds(case):
     """Seeds of a case: its split's ``split_seeds`` entry, else the config's ``seeds``."""
-    from ipm.cases import case_split
-    from ipm.cases import load_case
+    from ipm.cases import case_split, load_case
 
     return config["split_seeds"].get(case_split(load_case(case)), config["seeds"])
 
@@ -56,11 +55,9 @@ def check_methods():
     """Refuse, when the DAG is built, unknown method names, unknown case names in a row's list and
     generators a method cannot fit (the diff path on trees), each with one line saying why.
     """
+    from ipm.cases import case_split, load_case
     from ipm.errors import UserError
     from ipm.methods import check_generator
-    from ipm.cases import load_case
-
-    from ipm.cases import case_split
 
     for case in config["cases"]:
         case_split(load_case(case))
