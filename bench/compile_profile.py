@@ -5,7 +5,7 @@ setting). Every Python process the command starts (test workers, the CLI, the sm
 records itself (``bench/compile_hook``); the summary adds them up. Run with nothing else on the
 machine.
 
-    .venv/bin/python bench/compile_profile.py [--out results/bench/compile_profile.json] [--top 25]
+    .venv/bin/python bench/compile_profile.py [--out results/bench/compile_profile.json] [--top 25] [--keep FOLDER]
         [-- COMMAND ...]      # default: the whole test suite, .venv/bin/python -m pytest -q
 """
 from __future__ import annotations
@@ -50,6 +50,7 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
     programs: dict = defaultdict(Counter)
     tests: Counter = Counter()
     shapes: dict = defaultdict(Counter)  # (program, argument shapes) -> compiles, seconds
+    keys: dict = defaultdict(Counter)  # cache key -> compiles, seconds (one program, compiled again)
     for p in processes:
         for kind, test, program, seconds, *rest in p["records"]:
             totals[_TOTAL[kind]] += seconds if _TOTAL[kind].endswith("_s") else 1
@@ -57,12 +58,18 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
                 programs[program or "?"].update(compiles=1, seconds=seconds)
                 if rest and rest[0] and program:  # unnamed (uncached) programs differ beyond their shapes
                     shapes[program, rest[0]].update(compiles=1, seconds=seconds)
+                if len(rest) > 1 and rest[1]:
+                    keys[program, rest[1]].update(compiles=1, seconds=seconds)
             elif kind == "hit":
                 programs[program or "?"].update(hits=1)
             if kind in ("compile", "trace", "lower"):
                 tests[test] += seconds
     ranked = sorted(programs.items(), key=lambda kv: -kv[1]["seconds"])[:top]
     again = sorted(((k, c) for k, c in shapes.items() if c["compiles"] > 1), key=lambda kv: -kv[1]["seconds"])[:top]
+    # the same program (cache key) compiled more than once: in processes side by side, each before
+    # the other had written it, or read back by none (evicted)
+    repeated = [c["seconds"] * (c["compiles"] - 1) / c["compiles"] for c in keys.values() if c["compiles"] > 1]
+    totals.update(same_program_again_s=sum(repeated))
     return {"processes": len(processes), "totals": {k: round(v, 3) for k, v in totals.items()},
             "programs": [{"program": name, "compiles": c["compiles"], "seconds": round(c["seconds"], 3),
                           "hits": c["hits"]} for name, c in ranked],
@@ -75,7 +82,8 @@ def markdown(summary: dict) -> str:
     t = summary["totals"]
     lines = [f"{summary['processes']} processes, {t.get('cpu_s', 0):.0f} s CPU: backend compile "
              f"{t.get('compile_s', 0):.0f} s, tracing {t.get('trace_s', 0):.0f} s, lowering {t.get('lower_s', 0):.0f} s, "
-             f"cache reads {t.get('read_s', 0):.0f} s ({t.get('hits', 0):.0f} hits, {t.get('misses', 0):.0f} misses)",
+             f"cache reads {t.get('read_s', 0):.0f} s ({t.get('hits', 0):.0f} hits, {t.get('misses', 0):.0f} misses); "
+             f"the same program compiled again {t.get('same_program_again_s', 0):.0f} s",
              "", "| program | compiles | seconds | cache hits |", "|---|---|---|---|"]
     lines += [f"| {p['program']} | {p['compiles']} | {p['seconds']} | {p['hits']} |" for p in summary["programs"]]
     lines += ["", "| test | compile + trace + lower (s) |", "|---|---|"]
@@ -91,13 +99,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=Path("results/bench/compile_profile.json"))
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--keep", type=Path, help="keep every process's records in this folder (default: a temporary one)")
     ap.add_argument("command", nargs="*", help="the command to profile (after --); default: the test suite")
     args = ap.parse_args(argv)
     command = args.command or [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
     with tempfile.TemporaryDirectory(prefix="ipm-compile-profile-") as folder:
-        rc, wall = profiled_run(command, Path(folder))
+        if args.keep:
+            args.keep.mkdir(parents=True, exist_ok=True)
+        records = args.keep or Path(folder)
+        rc, wall = profiled_run(command, records)
         summary = {"command": [Path(command[0]).name, *command[1:]], "exit_status": rc, "wall_s": round(wall, 1),
-                   **summarize(read_processes(Path(folder)), args.top)}
+                   **summarize(read_processes(records), args.top)}
     print(markdown(summary))
     write_json(args.out, summary)  # atomically, its folder made
     return rc

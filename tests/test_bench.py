@@ -105,20 +105,23 @@ def test_texture_paints_ground_truths_of_the_generators_only_and_tables_them(tmp
 
 
 def test_compile_profile_adds_up_processes_by_program_and_test():
-    """Totals over processes; programs ranked by compile seconds with their cache hits; tests by
-    compile, trace and lowering seconds (a record outside a test goes to "-")."""
+    """Totals over processes (with the seconds spent compiling a program, by its cache key, again);
+    programs ranked by compile seconds with their cache hits; tests by compile, trace and lowering
+    seconds (a record outside a test goes to "-")."""
     prof = _script("compile_profile")
     worker = {"cpu_s": 10.0, "records": [["miss", "t::a", "jit_fn", 0.0], ["compile", "t::a", "jit_fn", 3.0],
                                          ["trace", "t::a", None, 0.5], ["hit", "t::b", "jit_fn", 0.0],
                                          ["read", "t::b", None, 0.1], ["lower", "t::b", None, 0.25]]}
-    job = {"cpu_s": 4.0, "records": [["miss", "-", "jit_inline", 0.0], ["compile", "-", "jit_inline", 1.0, "(f32[4])"],
-                                     ["compile", "t::a", "jit_fn", 2.0], ["compile", "-", "jit_inline", 0.5, "(f32[4])"],
+    job = {"cpu_s": 4.0, "records": [["miss", "-", "jit_inline", 0.0],
+                                     ["compile", "-", "jit_inline", 1.0, "(f32[4])", "jit_inline-k1"],
+                                     ["compile", "t::a", "jit_fn", 2.0],
+                                     ["compile", "-", "jit_inline", 0.5, "(f32[4])", "jit_inline-k1"],
                                      ["compile", "-", "jit_inline", 0.5, "(f32[8])"], ["compile", "-", None, 0.5, "()"],
                                      ["compile", "-", None, 0.5, "()"]]}
     out = prof.summarize([worker, job], top=5)
     assert out["processes"] == 2
     assert out["totals"] == {"cpu_s": 14.0, "compile_s": 8.0, "trace_s": 0.5, "lower_s": 0.25, "read_s": 0.1,
-                             "hits": 1, "misses": 2}
+                             "hits": 1, "misses": 2, "same_program_again_s": 0.75}  # k1 twice: one of 0.75 s
     assert out["programs"] == [{"program": "jit_fn", "compiles": 2, "seconds": 5.0, "hits": 1},
                                {"program": "jit_inline", "compiles": 3, "seconds": 2.0, "hits": 0},
                                {"program": "?", "compiles": 2, "seconds": 1.0, "hits": 0}]
@@ -140,10 +143,13 @@ def test_compile_profile_records_a_process_it_starts(tmp_path, monkeypatch):
             "def sine_gram(x):\n    return jnp.sin(x) @ x.T\n"
             "jax.jit(sine_gram)(jnp.ones((64, 64))).block_until_ready()")
     monkeypatch.setenv("IPM_JAX_CACHE", str(tmp_path / "cache"))
-    out = tmp_path / "out.json"
-    rc = _script("compile_profile").main(["--out", str(out), "--", sys.executable, "-c", code])
+    out, kept = tmp_path / "out.json", tmp_path / "records"
+    rc = _script("compile_profile").main(["--out", str(out), "--keep", str(kept), "--", sys.executable, "-c", code])
     summary = json.loads(out.read_text())
     assert rc == 0 and summary["processes"] == 1 and summary["totals"]["cpu_s"] > 0, summary
+    records = json.loads(next(kept.glob("*.json")).read_text())["records"]  # kept: with each compile's cache key
+    keys = [r[5] for r in records if r[0] == "compile" and r[2] == "jit_sine_gram"]
+    assert len(keys) == 1 and keys[0].startswith("jit_sine_gram-"), records
     assert summary["totals"]["misses"] >= 1 and summary["totals"]["compile_s"] > 0, summary
     assert any(p["program"] == "jit_sine_gram" and p["compiles"] == 1 for p in summary["programs"]), summary
     assert all(r["program"] != "jit_sine_gram" for r in summary["same_shapes"]), summary  # one compile

@@ -1,7 +1,7 @@
 """Loaded by every Python process that ``bench/compile_profile.py`` starts (its folder leads
 ``PYTHONPATH``): where ``IPM_COMPILE_PROFILE`` names a folder, records this process's JAX compiles
 (XLA's backend compile, tracing and lowering; persistent-cache hits and misses, by program name;
-each compile with its programs' argument shapes) with the pytest test running at the time
+each compile with its programs' argument shapes and its cache key) with the pytest test running at the time
 (``PYTEST_CURRENT_TEST``, inherited by the processes a test starts), and writes them there as
 ``<pid>.json`` when the process ends. Elsewhere it does nothing."""
 from __future__ import annotations
@@ -25,13 +25,14 @@ def _test() -> str:
 
 if _FOLDER:
     _records: list = []
-    _state = {"listening": False, "program": None, "shapes": None}
+    _state = {"listening": False, "program": None, "shapes": None, "key": None}
 
     def _on_duration(event: str, seconds: float, **_):
         kind = _EVENTS.get(event)
         if kind == "compile":  # the program its cache miss named; "?" where none was logged
-            _records.append((kind, _test(), _state["program"], seconds, _state["shapes"]))
-            _state["program"] = _state["shapes"] = None  # a compile whose lowering logged none gets none
+            _records.append((kind, _test(), _state["program"], seconds, _state["shapes"], _state["key"]))
+            # a compile whose lowering or lookup logged none gets none
+            _state["program"] = _state["shapes"] = _state["key"] = None
         elif kind is not None:
             _records.append((kind, _test(), None, seconds))
 
@@ -47,6 +48,7 @@ if _FOLDER:
             name = message.split("'")[1] if message.count("'") >= 2 else "?"
             if message.startswith("PERSISTENT COMPILATION CACHE MISS"):
                 _state["program"] = name
+                _state["key"] = message.rsplit(" with key ", 1)[-1].strip("'") if " with key " in message else None
                 _records.append(("miss", _test(), name, 0.0))
             elif message.startswith("Persistent compilation cache hit"):
                 _records.append(("hit", _test(), name, 0.0))
