@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from collections import Counter, defaultdict
+from contextlib import nullcontext
 from pathlib import Path
 
 from ipm.io.atomic import write_json
@@ -50,7 +51,7 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
     programs: dict = defaultdict(Counter)
     tests: Counter = Counter()
     shapes: dict = defaultdict(Counter)  # (program, argument shapes) -> compiles, seconds
-    keys: dict = defaultdict(Counter)  # cache key -> compiles, seconds (one program, compiled again)
+    keys: dict = defaultdict(Counter)  # cache key (the program's name and a hash) -> compiles, seconds
     for p in processes:
         for kind, test, program, seconds, *rest in p["records"]:
             totals[_TOTAL[kind]] += seconds if _TOTAL[kind].endswith("_s") else 1
@@ -59,7 +60,7 @@ def summarize(processes: list[dict], top: int = 25) -> dict:
                 if rest and rest[0] and program:  # unnamed (uncached) programs differ beyond their shapes
                     shapes[program, rest[0]].update(compiles=1, seconds=seconds)
                 if len(rest) > 1 and rest[1]:
-                    keys[program, rest[1]].update(compiles=1, seconds=seconds)
+                    keys[rest[1]].update(compiles=1, seconds=seconds)
             elif kind == "hit":
                 programs[program or "?"].update(hits=1)
             if kind in ("compile", "trace", "lower"):
@@ -82,8 +83,8 @@ def markdown(summary: dict) -> str:
     t = summary["totals"]
     lines = [f"{summary['processes']} processes, {t.get('cpu_s', 0):.0f} s CPU: backend compile "
              f"{t.get('compile_s', 0):.0f} s, tracing {t.get('trace_s', 0):.0f} s, lowering {t.get('lower_s', 0):.0f} s, "
-             f"cache reads {t.get('read_s', 0):.0f} s ({t.get('hits', 0):.0f} hits, {t.get('misses', 0):.0f} misses); "
-             f"the same program compiled again {t.get('same_program_again_s', 0):.0f} s",
+             f"cache reads {t.get('read_s', 0):.0f} s ({t.get('hits', 0):.0f} hits, {t.get('misses', 0):.0f} "
+             f"misses); the same program compiled again {t.get('same_program_again_s', 0):.0f} s",
              "", "| program | compiles | seconds | cache hits |", "|---|---|---|---|"]
     lines += [f"| {p['program']} | {p['compiles']} | {p['seconds']} | {p['hits']} |" for p in summary["programs"]]
     lines += ["", "| test | compile + trace + lower (s) |", "|---|---|"]
@@ -103,10 +104,9 @@ def main(argv=None) -> int:
     ap.add_argument("command", nargs="*", help="the command to profile (after --); default: the test suite")
     args = ap.parse_args(argv)
     command = args.command or [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
-    with tempfile.TemporaryDirectory(prefix="ipm-compile-profile-") as folder:
-        if args.keep:
-            args.keep.mkdir(parents=True, exist_ok=True)
-        records = args.keep or Path(folder)
+    with nullcontext(args.keep) if args.keep else tempfile.TemporaryDirectory(prefix="ipm-compile-profile-") as folder:
+        records = Path(folder)
+        records.mkdir(parents=True, exist_ok=True)
         rc, wall = profiled_run(command, records)
         summary = {"command": [Path(command[0]).name, *command[1:]], "exit_status": rc, "wall_s": round(wall, 1),
                    **summarize(read_processes(records), args.top)}

@@ -101,9 +101,8 @@ def truth(case: str, work: Path, n_input: int, passes: int | None = None) -> dic
     """The case's own ground truth painted by the texture stage from its first ``n_input`` views and
     scored as :func:`one` (row ``truth``): what the stage reaches where the shape is right. In-family
     cases only: the fill's symmetry is the generator's charts'."""
-    from ipm.cases import case_family
+    from ipm.cases import case_family, load_case
     from ipm.errors import UserError
-    from ipm.cases import load_case
     from ipm.synth import ground_truth_mesh
 
     spec = load_case(case)
@@ -211,8 +210,7 @@ def main() -> None:
             rows += [repaint(c, work, n, s, "none", None, passes) for c in args.cases for n in args.inputs
                      for s in args.seeds for _ in range(args.repeat)]
         if args.truth:  # the cases a generator made (the others' charts have no symmetry to fill by)
-            from ipm.cases import case_family
-            from ipm.cases import load_case
+            from ipm.cases import case_family, load_case
 
             made = [c for c in args.cases if case_family(load_case(c)) == "in"]
             rows += [truth(c, work, n, p) for c in made for n in args.inputs for p in [None, *args.passes]]

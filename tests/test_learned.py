@@ -22,8 +22,7 @@ def _views(sample) -> Views:
 
 def test_training_seeds_are_disjoint_from_every_case():
     """No case's sampler seed falls in the training range, so no test object is trained on."""
-    from ipm.cases import SAMPLED
-    from ipm.cases import list_cases, load_case
+    from ipm.cases import SAMPLED, list_cases, load_case
 
     seeds = {s for _, _, s, _, _ in SAMPLED}
     seeds |= {load_case(c).get("sampler", {}).get("seed", 0) for c in list_cases()}

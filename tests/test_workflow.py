@@ -331,9 +331,7 @@ def test_the_benchmark_config_runs_every_case():
     names cases, covers every case of its generator's class that the row's method can run."""
     import yaml
 
-    from ipm.cases import list_cases, load_case
-
-    from ipm.cases import expand_groups
+    from ipm.cases import expand_groups, list_cases, load_case
 
     cfg = expand_groups(yaml.safe_load((ROOT / "pipelines/config/benchmark.yaml").read_text()))
     assert sorted(cfg["cases"]) == sorted(list_cases())
