@@ -305,5 +305,13 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def run() -> None:
+    """The ``ipm`` command: :func:`main`, then the process ends at once with its status
+    (``ipm.runtime.exit_now``: no teardown of the libraries it loaded)."""
+    from ipm.runtime import exit_now
+
+    exit_now(main())
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

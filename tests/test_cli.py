@@ -133,3 +133,7 @@ def test_cases_lists_every_case_with_its_split():
     assert any(ln.startswith("cup_t1") and ln.endswith("39.6 deg") for ln in lines)
     res = ipm("cases")
     assert res.returncode == 0 and any(ln.startswith("cup_1 ") and " dev " in ln for ln in res.stdout.splitlines())
+    from ipm.cases import list_cases
+
+    # the whole listing reaches the pipe, to its last case, though the command ends without teardown
+    assert [ln.split()[0] for ln in res.stdout.strip().splitlines()[1:]] == list_cases()

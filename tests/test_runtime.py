@@ -50,6 +50,15 @@ def test_a_one_thread_job_keeps_one_core_busy(command, package_flags, tiny_case,
     assert cpu <= CPU_OVER_WALL * wall, f"{cpu:.1f} s CPU in {wall:.1f} s wall"
 
 
+def test_exit_now_keeps_the_status_and_everything_printed():
+    """``exit_now`` skips the interpreter's teardown, not the buffered output: a pipe gets all of
+    standard output and standard error, and the parent the status."""
+    code = ("import logging, sys; from ipm.runtime import exit_now; logging.basicConfig(stream=sys.stderr); "
+            "print('x' * 100000, end=''); logging.getLogger('t').warning('w'); print('e', file=sys.stderr); exit_now(3)")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 3 and res.stdout == "x" * 100000 and res.stderr.splitlines() == ["WARNING:t:w", "e"]
+
+
 def test_thread_count_follows_the_configured_threads(monkeypatch):
     import ipm.runtime as rt
 

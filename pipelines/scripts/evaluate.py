@@ -1,3 +1,4 @@
+from ipm.runtime import exit_now
 from ipm.workflow import evaluate_step
 
 evaluate_step(reference=snakemake.input.reference, truth=snakemake.input.truth, run=snakemake.input.run,
@@ -6,3 +7,4 @@ evaluate_step(reference=snakemake.input.reference, truth=snakemake.input.truth, 
               res=snakemake.params.res, grid=snakemake.params.grid, views=snakemake.input.get("views") or None,
               reference_masks=snakemake.input.reference_masks,
               threads=snakemake.threads, log=snakemake.log[0])
+exit_now()  # the outputs are written: the job ends without tearing its libraries down

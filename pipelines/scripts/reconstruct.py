@@ -1,3 +1,4 @@
+from ipm.runtime import exit_now
 from ipm.workflow import reconstruct_step
 
 reconstruct_step(method=snakemake.params.method, transforms=f"{snakemake.input.views}/transforms.json",
@@ -7,3 +8,4 @@ reconstruct_step(method=snakemake.params.method, transforms=f"{snakemake.input.v
                  prepared=snakemake.input.get("prepared"), settings=snakemake.params.settings,
                  threads=snakemake.threads, log=snakemake.log[0],
                  device=snakemake.params.device)
+exit_now()  # the outputs are written: the job ends without tearing its libraries down
