@@ -300,16 +300,6 @@ def test_polish_steps_window_counts_and_turns(variant):
                     plan=planned.append)
     polish(counted, z, PolishSettings(polish_sweeps=3, polish_steps=2))
     assert len(spent) > 0 and sum(planned) == len(spent) and planned[0] >= len(spent) / 3
-    # a roof's type is tried at every other value, or left to the roof race
-    r = gen.spec.index["roof_type"]
-
-    def flat_best(v, seed=None):  # lowest with a flat roof (type 0)
-        return v[r] ** 2, np.zeros_like(v)
-
-    tried = polish(trial(problem, flat_best), z, PolishSettings(polish_sweeps=1, polish_steps=1))
-    left = polish(trial(problem, flat_best), z, PolishSettings(polish_sweeps=1, polish_steps=1,
-                                                                polish_categorical=False))
-    assert tried[r] == 0.0 and left[r] == z[r]
 
 
 def test_decide_tries_every_kind_of_roof():

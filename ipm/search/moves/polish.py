@@ -21,9 +21,6 @@ class PolishSettings(Settings):
     settle alone; 0: none (docs/decisions.md, 'Polish')."""
     polish_steps: Annotated[int, at_least(0)] = 6
     """Adam steps given to each neighbour before it is compared."""
-    polish_categorical: bool = True
-    """Whether the climb also tries every other value of a categorical parameter (a roof's type),
-    which the roof race tries again at the next width (docs/decisions.md, 'Polish')."""
 
 
 def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.ndarray]]]:
@@ -50,16 +47,13 @@ def neighbours(problem: Problem, z: np.ndarray) -> dict[str, list[tuple[str, np.
 
 
 def polish(trial, z: np.ndarray, settings: PolishSettings, settled=frozenset()) -> np.ndarray:
-    """Parameter by parameter (but those named in ``settled``, and without ``polish_categorical`` the
-    categorical ones), try the current point's
+    """Parameter by parameter (but those named in ``settled``), try the current point's
     :func:`neighbours` with ``polish_steps`` Adam steps each and move to the first that lowers
     the loss (same render seeds on both sides); up to ``polish_sweeps`` sweeps. The memetic stage
     moves one many-valued gene at a time by chance, so a window count one off on a facade would
     otherwise be left standing."""
     problem, score = trial.problem, trial.scorer((10_003, 10_004))
     best, each = score(z), max(settings.polish_steps, 1)  # evaluations a neighbour costs
-    if not settings.polish_categorical:
-        settled = settled | frozenset(problem.generator.categorical)
     for _ in range(settings.polish_sweeps):
         improved, params = False, {p: v for p, v in neighbours(problem, z).items() if p not in settled}
         planned, spent = each * sum(len(v) for v in params.values()), 0
