@@ -1,7 +1,8 @@
 """Benchmark: a single-view fit as a user runs it, ``ipm reconstruct --views ...``, a new process
 per fit with JAX's compilation cache warm (one run first that is not counted), on ``--threads``
 CPU threads. Prints and writes each case's median wall time of the whole command and of the fit
-(``timing.json``: from the views read to the mesh written), and checks the targets on the fit
+(``timing.json``: from the views read to the mesh written), each run's seconds by stage of the
+search (its trace), and checks the targets on the fit
 (:data:`TARGETS_S`: a warm cup within 10 s, a warm building within 45 s, on 2 CPU threads; the
 whole command adds the imports, about 1.2 s).
 
@@ -28,14 +29,32 @@ TARGETS_S = {"dishes": 10.0, "buildings": 45.0}
 """A warm fit on 2 CPU threads, at most (seconds), per generator."""
 
 
-def timed_fit(generator: str, views: Path, out: Path, threads: int, seed: int) -> tuple[float, float]:
-    """Wall seconds of one ``ipm reconstruct`` command and its fit's seconds (timing.json)."""
+def stage_seconds(trace) -> list[dict]:
+    """A fit's trace (trace.csv) as its stages in order, each run of rows of one stage and width
+    with its evaluations and seconds (from the stage before's last row to its own last: the work
+    between two stages is the later one's)."""
+    block = ((trace["stage"] != trace["stage"].shift()) | (trace["res"] != trace["res"].shift())).cumsum()
+    rows, before = [], 0.0
+    for _, part in trace.groupby(block, sort=True):
+        end = float(part["seconds"].iloc[-1])
+        rows.append({"stage": str(part["stage"].iloc[0]), "res": int(part["res"].iloc[0]), "evaluations": len(part),
+                     "seconds": round(end - before, 2)})
+        before = end
+    return rows
+
+
+def timed_fit(generator: str, views: Path, out: Path, threads: int, seed: int) -> tuple[float, float, list[dict]]:
+    """Wall seconds of one ``ipm reconstruct`` command, its fit's seconds (timing.json) and its
+    stages' (:func:`stage_seconds`)."""
+    import pandas as pd
+
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "ipm.cli", "reconstruct", "--generator", generator, "--views", str(views),
                     "--out", str(out), "--threads", str(threads), "--seed", str(seed), "--quiet"], check=True,
                    capture_output=True)
     wall = time.perf_counter() - t0
-    return wall, float(json.loads((out / "timing.json").read_text())["seconds"])
+    stages = stage_seconds(pd.read_csv(out / "trace.csv"))
+    return wall, float(json.loads((out / "timing.json").read_text())["seconds"]), stages
 
 
 def main() -> None:
@@ -63,9 +82,12 @@ def main() -> None:
             runs = [timed_fit(generator, src / "transforms.json", Path(tmp) / "out", args.threads, args.seed)
                     for _ in range(args.runs)]
             wall, fit = np.median([r[0] for r in runs]), np.median([r[1] for r in runs])
+            middle = runs[int(np.argsort([r[1] for r in runs])[len(runs) // 2])][2]  # the median fit's stages
             rows.append({"case": case, "generator": generator, "wall_s": round(float(wall), 2), "fit_s": round(float(fit), 2),
-                         "runs": [[round(w, 2), round(f, 2)] for w, f in runs]})
-            print(f"{case}: whole command {wall:.1f} s, fit {fit:.1f} s (median of {args.runs})", flush=True)
+                         "runs": [[round(w, 2), round(f, 2)] for w, f, _ in runs], "stages": [r[2] for r in runs]})
+            print(f"{case}: whole command {wall:.1f} s, fit {fit:.1f} s (median of {args.runs}); its stages: "
+                  + ", ".join(f"{s['stage']}@{s['res']} {s['seconds']:.1f} s ({s['evaluations']})" for s in middle),
+                  flush=True)
     met = {g: all(r["fit_s"] <= TARGETS_S[g] for r in rows if r["generator"] == g)
            for g in dict.fromkeys(r["generator"] for r in rows) if g in TARGETS_S}  # per generator with a target
     if args.threads == 2:

@@ -48,6 +48,21 @@ def test_cup_fits_splits_a_trace_into_steady_time_and_events():
     assert row["seconds_steady"] == 0.02 and row["median_eval_ms"] == 4.0 and row["memetic_s"] == 2.01
 
 
+def test_warm_fit_splits_a_trace_into_its_stages_in_order():
+    """Each run of one stage and width is a stage, a stage met again later a new one; the gap
+    before a stage's first row is the stage's."""
+    import pandas as pd
+
+    stage_seconds = _script("warm_fit").stage_seconds
+    trace = pd.DataFrame({"stage": ["memetic"] * 3 + ["refine"] * 2 + ["refine"] + ["memetic"],
+                          "res": [96, 96, 96, 128, 128, 256, 96],
+                          "seconds": [1.0, 1.5, 2.0, 3.0, 3.5, 5.0, 5.25]})
+    assert stage_seconds(trace) == [{"stage": "memetic", "res": 96, "evaluations": 3, "seconds": 2.0},
+                                    {"stage": "refine", "res": 128, "evaluations": 2, "seconds": 1.5},
+                                    {"stage": "refine", "res": 256, "evaluations": 1, "seconds": 1.5},
+                                    {"stage": "memetic", "res": 96, "evaluations": 1, "seconds": 0.25}]
+
+
 def test_mask_robustness_degrades_the_input_mask_and_measures_against_the_true_masks_fit(tmp_path):
     """The copied views folder holds the degraded mask (its IoU with the true one returned), nothing
     else changes; losses are against the same case and seed's fit to the true mask."""
