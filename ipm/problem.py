@@ -193,18 +193,6 @@ class Problem:
         out[: self.n_shape] = self.spec.to_unit(self.spec.clip(x))
         return self.clip(out)
 
-    def with_kind(self, z: np.ndarray, name: str, k: int, follow: bool = False) -> np.ndarray:
-        """``z`` with the categorical parameter ``name`` at its ``k``-th value; with ``follow``,
-        its followers (``Generator.kind_followers``, read off ``z``) at the same value too."""
-        spec = self.spec
-        names = (name, *(self.generator.kind_followers(spec.from_unit(z[: self.n_shape]), name) if follow else ()))
-        value = spec.lower[spec.index[name]] + k
-        out = np.array(z, np.float64)
-        for other in names:
-            j = spec.index[other]
-            out[j] = np.clip((value - spec.lower[j]) / (spec.levels[j] - 1), 0.0, 1.0)
-        return out
-
     def turned(self, z: np.ndarray, angle: float) -> np.ndarray:
         """``z`` with its yaw turned by ``angle`` radians about +y, projected (:meth:`clip`)."""
         out = np.array(z, np.float64)

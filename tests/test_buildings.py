@@ -112,26 +112,3 @@ def test_facade_jacobian_matches_central_differences(gen):
         fd = central_difference(f, x, i, 1e-3 * span[i])
         assert np.abs(fd).max() > 0.1, name  # the parameter moves something at this level
         assert np.abs(jac[..., i] - fd).max() < 2e-2 * np.abs(fd).max(), name
-
-
-def test_wings_roofed_as_the_main_wing_follow_its_kind(gen):
-    """A wing whose roof is of the main roof's kind takes the main roof's new kind with it where
-    a move asks for followers; a wing of another kind, or one the plan does not have, stays."""
-    from ipm.problem import Problem
-
-    ix = gen.spec.index
-    x = gen.presets["house"].copy()
-    x[ix["template"]], x[ix["annex"]] = 1, 1  # an L (wing 1) and the annex (wing 3)
-    x[ix["roof_type"]], x[ix["wing1_roof"]], x[ix["wing2_roof"]], x[ix["wing3_roof"]] = GABLE, GABLE, GABLE, FLAT
-    assert gen.kind_followers(x, "roof_type") == ("wing1_roof",)  # wing 2 is the U's: not on an L
-    assert gen.kind_followers(x, "wing1_roof") == ()
-    problem = Problem(gen, np.zeros(3), 1.0)
-    z = problem.initial_z(gen.spec.to_unit(x), 0.3)
-    for follow, wing1 in ((True, HIP), (False, GABLE)):
-        got = gen.spec.from_unit(problem.with_kind(z, "roof_type", HIP, follow)[:problem.n_shape])
-        assert (got[ix["roof_type"]], got[ix["wing1_roof"]]) == (HIP, wing1)
-        assert (got[ix["wing2_roof"]], got[ix["wing3_roof"]]) == (GABLE, FLAT)
-        others = np.ones(problem.n_shape, bool)
-        others[[ix["roof_type"], ix["wing1_roof"]]] = False
-        np.testing.assert_array_equal(problem.with_kind(z, "roof_type", HIP, follow)[:problem.n_shape][others],
-                                      z[:problem.n_shape][others])

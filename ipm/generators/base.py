@@ -170,11 +170,6 @@ class Generator:
     """Discrete parameters whose values are kinds, not amounts (buildings: the roof type): polish
     tries every other value, not the next ones (``ipm.search.moves.polish``), and the roof race
     every value (``ipm.search.moves.roof``): one kind's basin is not next to another's."""
-
-    def kind_followers(self, x, name: str) -> tuple[str, ...]:
-        """Categorical parameters of ``x`` that share ``name``'s kind and take a new kind of it
-        along where a move sets one (``RoofSettings.kinds_follow``): none here."""
-        return ()
     closed_solids: bool = False
     """True when every mesh is a union of closed, outward-facing solids: a renderer may then draw
     the triangles facing the camera alone (``ipm.render.edges``)."""

@@ -91,13 +91,6 @@ class Buildings(Generator):
         s["roofs"] = {s["roof_type"], *(s[f"wing{k}_roof"] for k in s["wings"])}
         return s
 
-    def kind_followers(self, x, name: str) -> tuple[str, ...]:
-        """The wings (of those ``x`` has) whose roof is of the main roof's kind follow it."""
-        if name != "roof_type":
-            return ()
-        s = self._structure(self.topology_key(x))
-        return tuple(f"wing{k}_roof" for k in s["wings"] if s[f"wing{k}_roof"] == s["roof_type"])
-
     def occam_parts(self, x) -> int:
         """The main wing and every wing the plan and the annex switch on."""
         return 1 + len(self._structure(self.topology_key(x))["wings"])

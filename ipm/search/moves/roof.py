@@ -37,10 +37,6 @@ class RoofSettings(Settings):
     """Where a categorical parameter has more values than this, a first round gives every value as it stands
     ``decide_steps``, and only the best ``decide_kinds`` go on to be tried turned and with the height shares;
     0: every value with its turns and shares from the start (docs/decisions.md, 'Roof race')."""
-    kinds_follow: bool = False
-    """Where the race or polish gives a categorical parameter another value, the parameters that share its
-    value (``Generator.kind_followers``: a building's wings roofed as its main wing) take it too
-    (docs/decisions.md, 'Wings' roofs with the main roof')."""
 
 
 def decide_evaluations(candidates: int, settings: RoofSettings, values: int | None = None) -> int:
@@ -79,8 +75,11 @@ def decide(trial, z: np.ndarray, settings: RoofSettings, recount=None) -> np.nda
         if settings.decide_steps <= 0 or not on[i]:
             continue
         levels = int(spec.levels[i])
-        values = [(f"{name}={spec.lower[i] + k:g}", problem.with_kind(z, name, k, settings.kinds_follow))
-                  for k in range(levels)]
+        values = []
+        for k in range(levels):
+            alt = z.copy()
+            alt[i] = k / (levels - 1)
+            values.append((f"{name}={spec.lower[i] + k:g}", alt))
         kept = range(levels)
         if 0 < settings.decide_kinds < levels:  # every value as it stands first; the best go on
             tried = trial.tries([(start, tag, settings.decide_steps, score) for tag, start in values])
