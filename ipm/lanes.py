@@ -4,7 +4,8 @@ trace and the render seeds of running them one after another, to the bit.
 A search's evaluations draw their render seeds in order (``ipm.search.objective.Objective.seeds``)
 and grow the JAX renderer's span budgets as its meshes need (``ipm.render.edges.EdgeRenderer``);
 both would follow the threads' timing if tries simply ran at once. Here each try (a :class:`Task`)
-runs with the seeds it would draw after the tries before it (a task says how many it draws), on its
+runs with the seeds it would draw after the tries before it (a task says how many it draws; one that
+rewinds an objective's seeds draws from the first, as each finalist's refinement does), on its
 own copy of every budget table it reads (:func:`table`), its trace rows held back (:func:`later`).
 The tries are then taken in order: one whose budgets were those the tries before it leave behind
 is kept as it ran and its rows written; any other runs again, alone, on the budgets as they stand
@@ -32,15 +33,21 @@ class Task:
 
     fn: Callable[[], Any]
     draws: dict = field(default_factory=dict)
+    rewinds: tuple = ()
+    """Objects of ``draws`` the task rewinds (:func:`rewind`) before it draws any seed of them (a
+    draw before is an error): its seeds of them start at 0 whatever ran before, and it leaves them
+    at its count."""
 
 
 class _Context:
     """What one task runs with: its seeds' cursors, its copies of the budget tables, what it grew,
     its held trace rows."""
 
-    def __init__(self, bases: dict):
+    def __init__(self, bases: dict, rewound: frozenset = frozenset()):
         self.cursors = dict(bases)
         self.first = dict(bases)
+        self.rewound = rewound  # ids of the objects whose seeds the task starts again at 0
+        self.pending = set(rewound)  # those not yet rewound: no draws of them before
         self.tables: dict = {}  # id(shared table) -> (shared, the task's copy)
         self.journal: list = []  # (shared table, key, budget used, budget after)
         self.held: list = []  # (fn, args)
@@ -58,9 +65,24 @@ def draw(owner, n: int) -> np.ndarray | None:
         return None
     if id(owner) not in context.cursors:
         raise RuntimeError("a task drew render seeds of an objective it did not declare")
+    if id(owner) in context.pending:
+        raise RuntimeError("a task drew render seeds of an objective before it rewound them")
     start = context.cursors[id(owner)]
     context.cursors[id(owner)] = start + n
     return np.arange(start, start + n)
+
+
+def rewind(owner) -> bool:
+    """Within a task that declared ``owner`` rewound, its next render seed of ``owner`` is 0 again
+    (True); outside tasks False: ``owner`` rewinds itself."""
+    context = _current()
+    if context is None:
+        return False
+    if id(owner) not in context.rewound:
+        raise RuntimeError("a task rewound render seeds it did not declare rewound")
+    context.cursors[id(owner)] = 0
+    context.pending.discard(id(owner))
+    return True
 
 
 def table(shared: dict) -> dict:
@@ -114,6 +136,8 @@ class Lanes:
             return out
         bases, running = [], {}
         for task in tasks:
+            for o in task.rewinds:
+                running[id(o)] = 0
             bases.append({id(o): running.setdefault(id(o), o.calls) for o in task.draws})
             for o, n in task.draws.items():
                 running[id(o)] += n
@@ -148,7 +172,7 @@ class Lanes:
 
 
 def _run(task: Task, bases: dict) -> tuple[Any, _Context]:
-    _LOCAL.context = context = _Context(bases)
+    _LOCAL.context = context = _Context(bases, frozenset(id(o) for o in task.rewinds))
     try:
         return task.fn(), context
     finally:
@@ -176,7 +200,7 @@ def _keep(task: Task, context: _Context) -> None:
     for shared, key, _, after in context.journal:
         shared[key] = after
     for o, n in task.draws.items():
-        o.calls += n
+        o.calls = n if o in task.rewinds else o.calls + n
     for fn, args in context.held:
         fn(*args)
 

@@ -26,6 +26,10 @@ class Drawer:
         self.calls += n
         return np.arange(self.calls - n, self.calls)
 
+    def rewind(self) -> None:
+        if not lanes.rewind(self):
+            self.calls = 0
+
     def evaluate(self, need: int, key: str = "k") -> tuple[int, int]:
         """(seed, budget run with): the budget starts at 4, grows to twice the need past it."""
         seed = int(self.seeds(1)[0])
@@ -59,6 +63,33 @@ def test_side_by_side_gives_the_one_after_another_results(needs):
     assert got == expected
     assert (side.calls, side.budgets, side.rows) == (serial.calls, serial.budgets, serial.rows)
     assert side.calls == sum(map(len, needs))
+
+
+def test_tries_that_rewind_draw_from_the_first_seed_each_as_one_after_another():
+    """A try declared to rewind its objective starts its draws at seed 0 whatever ran before, and
+    leaves the objective at its own count: a search's finalists refined side by side."""
+    needs = [[1, 2, 9], [3, 1, 1], [30, 1], [2]]
+
+    def tasks(drawer):
+        def task(ns):
+            def run():
+                drawer.rewind()
+                return [drawer.evaluate(n) for n in ns]
+            return Task(run, {drawer: len(ns)}, (drawer,))
+        return [task(ns) for ns in needs]
+
+    serial, side = Drawer(), Drawer()
+    serial.calls = side.calls = 7
+    expected = Lanes(1).map(tasks(serial))
+    got = Lanes(2).map(tasks(side))
+    assert got == expected and [[seed for seed, _ in r] for r in got] == [[0, 1, 2], [0, 1, 2], [0, 1], [0]]
+    assert (side.calls, side.budgets, side.rows) == (serial.calls, serial.budgets, serial.rows)
+    assert side.calls == 1
+    with pytest.raises(RuntimeError, match="did not declare rewound"):
+        Lanes(2).map([Task(lambda: side.rewind(), {side: 0}) for _ in range(2)])
+    early = [Task(lambda: side.evaluate(1), {side: 1}, (side,)) for _ in range(2)]
+    with pytest.raises(RuntimeError, match="before it rewound"):
+        Lanes(2).map(early)
 
 
 def test_first_keeps_the_tries_up_to_the_first_that_stops_and_nothing_of_the_rest():

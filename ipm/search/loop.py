@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Annotated, Literal
 
 import numpy as np
 import pandas as pd
 
+from ipm import lanes
 from ipm.errors import UserError
 from ipm.io.views import Views, resize_masks
 from ipm.lanes import Lanes
-from ipm.optim.memetic import Individual, adam_steps, memetic
+from ipm.optim.memetic import Individual, adam_steps, memetic, step_evaluations
 from ipm.problem import Problem
 from ipm.runtime import thread_count
 from ipm.search.moves import PHASES, moves_for
@@ -187,7 +189,7 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
 
     def run(move, cands: list[Candidate], steps, score) -> list[Candidate]:
         label = move.label or move.name
-        track.enter(label, steps.width)
+        lanes.later(track.enter, label, steps.width)  # in order, where candidates run side by side
         trial = Trial(problem, steps, score, mem.lr, mem.reject_ratio, views, profile, track.on_eval,
                       track.recorder(label, score.width), track.extend, side)
         out = []
@@ -253,17 +255,20 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
         previous, objective = objective, Objective(problem, views, res, max(loop.refine_lod, least), profile.objective)
         for move in phase["stage"] + (phase["last"] if stage == len(loop.refine_res) - 1 else []):
             cands = run(move, cands, previous if move.steps_before else objective, objective)
-        refined = []
-        for cand in cands:
+
+        def refine(cand: Candidate, objective=objective, iters=iters, res=res) -> Candidate:
             for move in phase["refine"]:
                 cand = run(move, [cand], objective, objective)[0]
-            track.enter("refine", res, reset=True)
+            lanes.later(track.enter, "refine", res, True)
             objective.rewind()
             ind = Individual(cand.z, problem.key(cand.z), "refine", lr=mem.lr * 0.4)
             adam_steps(ind, iters + 1, objective, problem.clip, mem.reject_ratio, track.on_eval)
-            refined.append(replace(cand, z=ind.best_z, settled=frozenset()))
-        cands = refined
-        if len(refined) > 1:
+            return replace(cand, z=ind.best_z, settled=frozenset())
+
+        # each candidate's steps draw the same seeds: the refinements run side by side
+        cands = side.map([lanes.Task(partial(refine, cand), {objective: step_evaluations(iters + 1, True)}, (objective,))
+                          for cand in cands])
+        if len(cands) > 1:
             score, record = scorer(objective, (10_007, 10_008)), track.recorder("choose", res)
             losses = [score(c.z) for c in cands]
             for i, (loss, c) in enumerate(zip(losses, cands)):

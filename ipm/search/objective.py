@@ -154,8 +154,10 @@ class Objective:
 
     def rewind(self) -> None:
         """The next evaluation draws the first render seed again: a move's or a stage's draws do not
-        depend on how many evaluations the moves before it made."""
-        self.calls = 0
+        depend on how many evaluations the moves before it made (within a try run beside others,
+        the try's own seeds: ``ipm.lanes``)."""
+        if not lanes.rewind(self):
+            self.calls = 0
 
     def _render(self, z: np.ndarray) -> np.ndarray:
         fn, faces, n_vertices = self._groups(self.problem.key(z))
