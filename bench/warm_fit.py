@@ -43,6 +43,22 @@ def stage_seconds(trace) -> list[dict]:
     return rows
 
 
+def merged(stages: list[dict]) -> list[dict]:
+    """:func:`stage_seconds`' consecutive entries of one stage as one (a race's steps and its scores
+    at another width alternate): evaluations and seconds added, the widths joined ("128/256")."""
+    out = []
+    for s in stages:
+        if out and out[-1]["stage"] == s["stage"]:
+            last = out[-1]
+            widths = last["res"].split("/")
+            last["res"] = "/".join(widths + [str(s["res"])] if str(s["res"]) not in widths else widths)
+            last["evaluations"] += s["evaluations"]
+            last["seconds"] = round(last["seconds"] + s["seconds"], 2)
+        else:
+            out.append({**s, "res": str(s["res"])})
+    return out
+
+
 def timed_fit(generator: str, views: Path, out: Path, threads: int, seed: int) -> tuple[float, float, list[dict]]:
     """Wall seconds of one ``ipm reconstruct`` command, its fit's seconds (timing.json) and its
     stages' (:func:`stage_seconds`)."""
@@ -86,7 +102,7 @@ def main() -> None:
             rows.append({"case": case, "generator": generator, "wall_s": round(float(wall), 2), "fit_s": round(float(fit), 2),
                          "runs": [[round(w, 2), round(f, 2)] for w, f, _ in runs], "stages": [r[2] for r in runs]})
             print(f"{case}: whole command {wall:.1f} s, fit {fit:.1f} s (median of {args.runs}); its stages: "
-                  + ", ".join(f"{s['stage']}@{s['res']} {s['seconds']:.1f} s ({s['evaluations']})" for s in middle),
+                  + ", ".join(f"{s['stage']}@{s['res']} {s['seconds']:.1f} s ({s['evaluations']})" for s in merged(middle)),
                   flush=True)
     met = {g: all(r["fit_s"] <= TARGETS_S[g] for r in rows if r["generator"] == g)
            for g in dict.fromkeys(r["generator"] for r in rows) if g in TARGETS_S}  # per generator with a target

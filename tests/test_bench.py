@@ -61,6 +61,10 @@ def test_warm_fit_splits_a_trace_into_its_stages_in_order():
                                     {"stage": "refine", "res": 128, "evaluations": 2, "seconds": 1.5},
                                     {"stage": "refine", "res": 256, "evaluations": 1, "seconds": 1.5},
                                     {"stage": "memetic", "res": 96, "evaluations": 1, "seconds": 0.25}]
+    assert _script("warm_fit").merged(stage_seconds(trace)) == [
+        {"stage": "memetic", "res": "96", "evaluations": 3, "seconds": 2.0},
+        {"stage": "refine", "res": "128/256", "evaluations": 3, "seconds": 3.0},
+        {"stage": "memetic", "res": "96", "evaluations": 1, "seconds": 0.25}]
 
 
 def test_mask_robustness_degrades_the_input_mask_and_measures_against_the_true_masks_fit(tmp_path):
