@@ -102,7 +102,8 @@ def main() -> None:
             rows.append({"case": case, "generator": generator, "wall_s": round(float(wall), 2), "fit_s": round(float(fit), 2),
                          "runs": [[round(w, 2), round(f, 2)] for w, f, _ in runs], "stages": [r[2] for r in runs]})
             print(f"{case}: whole command {wall:.1f} s, fit {fit:.1f} s (median of {args.runs}); its stages: "
-                  + ", ".join(f"{s['stage']}@{s['res']} {s['seconds']:.1f} s ({s['evaluations']})" for s in merged(middle)),
+                  + ", ".join(f"{s['stage']}@{s['res']} {s['seconds']:.1f} s ({s['evaluations']})"
+                              for s in merged(middle)),
                   flush=True)
     met = {g: all(r["fit_s"] <= TARGETS_S[g] for r in rows if r["generator"] == g)
            for g in dict.fromkeys(r["generator"] for r in rows) if g in TARGETS_S}  # per generator with a target

@@ -266,8 +266,8 @@ def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, 
             return replace(cand, z=ind.best_z, settled=frozenset())
 
         # each candidate's steps draw the same seeds: the refinements run side by side
-        cands = side.map([lanes.Task(partial(refine, cand), {objective: step_evaluations(iters + 1, True)}, (objective,))
-                          for cand in cands])
+        draws = {objective: step_evaluations(iters + 1, True)}
+        cands = side.map([lanes.Task(partial(refine, cand), draws, (objective,)) for cand in cands])
         if len(cands) > 1:
             score, record = scorer(objective, (10_007, 10_008)), track.recorder("choose", res)
             losses = [score(c.z) for c in cands]
