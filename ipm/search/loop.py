@@ -18,7 +18,6 @@ import pandas as pd
 from ipm import lanes
 from ipm.errors import UserError
 from ipm.io.views import Views, resize_masks
-from ipm.lanes import Lanes
 from ipm.optim.memetic import Individual, adam_steps, memetic, step_evaluations
 from ipm.problem import Problem
 from ipm.runtime import thread_count
@@ -157,14 +156,14 @@ def reconstruct(problem: Problem, views: Views, profile, seed: int = 0, progress
     the JAX renderer, independent tries run side by side on the process's threads (``ipm.lanes``:
     the same result and trace as one after another)."""
     jax_renderer = renderer_kind(profile.objective.renderer, problem.fov_estimated is True) == "jax"
-    side = Lanes(thread_count() if jax_renderer else 1)
+    side = lanes.Lanes(thread_count() if jax_renderer else 1)
     try:
         return _search(problem, views, profile, seed, progress, start, side)
     finally:
         side.close()
 
 
-def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, start, side: Lanes):
+def _search(problem: Problem, views: Views, profile, seed: int, progress: bool, start, side: lanes.Lanes):
     """:func:`reconstruct`, its tries run by ``side``."""
     loop, full = profile.loop, profile.memetic
     learned = getattr(start, "learned", False)
