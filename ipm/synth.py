@@ -199,6 +199,10 @@ def synthesize(case: str | dict, out: str | Path, n_views: int = 1, res: int = 2
             rgb = render_painted(v, f, labels, uv, reference_appearance(spec, v, f, labels, uv), c2w, fov, res,
                                  res, spp)
             masks = SilhouetteRenderer(c2w, fov, res, res, spp=16).render(v, f)
+        empty = [i for i in range(n_views) if not (masks[i] > 0.5).any()]
+        if empty:
+            raise UserError(f"{case}: the object covers no pixel of view(s) {', '.join(map(str, empty))} at {res} px "
+                            f"(its true mesh spans {float(np.ptp(v, 0).max()):.3g} units)")
         frames = []
         for i in tqdm(range(n_views), desc=f"synth {case}", disable=not progress, leave=False):
             name = f"rgb/{i:03d}.jpg" if layout == "photo" else f"rgb/{i:03d}.png"

@@ -103,6 +103,34 @@ def test_a_mesh_file_case_is_synthesized_like_the_recipes(tmp_path, monkeypatch,
     assert str(tmp_path) not in recorded and json.loads(recorded)["source"]["args"]["path"] == "mug.glb"
 
 
+def test_a_mesh_file_in_millimetres_renders_as_in_metres(tmp_path, monkeypatch, mitsuba_cpu):
+    """Without a height a file keeps its units, and the cameras frame it by its size: the same mug
+    written in millimetres (1 200 units tall) gives the masks it gives in metres, where a sensor's
+    fixed far plane (10 000 units) left every view empty. A view the object does not reach is one
+    clear error and no output."""
+    import ipm.render.silhouette as silhouette
+    import ipm.synth as synth
+    from ipm.io.views import load_views
+    from ipm.render.cameras import CLIP, clip_planes, look_at
+
+    masks = []
+    for name, scale in (("metres", 1.0), ("millimetres", 1000.0)):
+        mug = trimesh.load(_z_up_mug(tmp_path / "mug.glb"))
+        mug.apply_scale(scale)
+        mug.export(tmp_path / f"{name}.glb")
+        synth.synthesize(synth.mesh_case(tmp_path / f"{name}.glb", "dishes", up="z"), tmp_path / name, n_views=2,
+                         res=32, spp=2, progress=False)
+        masks.append(load_views(tmp_path / name / "transforms.json").masks)
+    assert masks[0].any(axis=(1, 2)).all() and np.array_equal(masks[0], masks[1])
+    assert clip_planes(look_at([0, 1, 3], [0, 0, 0])) == CLIP  # the scenes' own scale: as before
+    assert clip_planes(look_at([0, 1e4, 3e4], [0, 0, 0]))[1] > 3.2e4
+    monkeypatch.setattr(silhouette.SilhouetteRenderer, "render", lambda self, v, f: np.zeros((2, 32, 32)))
+    with pytest.raises(UserError, match="covers no pixel of view"):
+        synth.synthesize(synth.mesh_case(tmp_path / "metres.glb", "dishes", up="z"), tmp_path / "none", n_views=2,
+                         res=32, spp=2, progress=False)
+    assert not (tmp_path / "none").exists()
+
+
 @pytest.mark.slow
 def test_ipm_synth_renders_a_mesh_file_without_a_case_file(tmp_path):
     """``ipm synth --mesh FILE --generator G``: the references of a model as a case of that class;

@@ -51,16 +51,30 @@ def mitsuba_to_world(c2w_gl: np.ndarray) -> np.ndarray:
     return np.asarray(c2w_gl, np.float64) @ _GL_TO_MI
 
 
+CLIP = (1e-3, 1e4)
+"""A sensor's near and far clipping distances for a camera 0.1 to 100 units from the origin, where
+the scene's object stands; :func:`clip_planes` scales them beyond."""
+
+
+def clip_planes(c2w_gl: np.ndarray) -> tuple[float, float]:
+    """Near and far clipping distances of the camera ``c2w_gl``: :data:`CLIP`, scaled with the
+    camera's distance from the origin where it is under 0.1 or over 100 units (a mesh file in
+    millimetres, framed by its size, stood beyond a fixed far plane and rendered empty)."""
+    d = float(np.linalg.norm(np.asarray(c2w_gl, np.float64)[:3, 3]))
+    return CLIP[0] * min(1.0, max(d, 1e-6) / 0.1), CLIP[1] * max(1.0, d / 100.0)
+
+
 def sensor_dict(c2w_gl: np.ndarray, fov_x: float, width: int, height: int) -> dict:
     """A Mitsuba perspective sensor (box filter, border sampling for moving silhouettes)."""
     import mitsuba as mi
 
+    near, far = clip_planes(c2w_gl)
     return {
         "type": "perspective",
         "fov": float(np.degrees(fov_x)),
         "fov_axis": "x",
-        "near_clip": 1e-3,
-        "far_clip": 1e4,
+        "near_clip": near,
+        "far_clip": far,
         "to_world": mi.ScalarTransform4f(mitsuba_to_world(c2w_gl).tolist()),
         "film": {"type": "hdrfilm", "width": int(width), "height": int(height),
                  "rfilter": {"type": "box"}, "pixel_format": "rgb", "sample_border": True},
