@@ -23,7 +23,7 @@ import numpy as np
 from PIL import Image
 
 from ipm.errors import UserError
-from ipm.io.views import Views, _read_mask
+from ipm.io.views import Views, _read_mask, open_image
 from ipm.render.cameras import is_fov_deg, pixel_ray
 
 EYE = np.array([0.0, 1.0, 0.0])
@@ -238,18 +238,18 @@ def photo_views(image: str, mask: str | None = None, fov_deg: float | None = Non
         raise UserError(f"image not found: {path}")
     try:
         with Image.open(path) as img:
-            width, height = img.size
             focal_35mm = img.getexif().get_ifd(0x8769).get(0xA405)  # Exif FocalLengthIn35mmFilm
+        width, height = open_image(path, upright=True).size  # as a viewer shows it
     except (OSError, ValueError) as exc:
         raise UserError(f"cannot read image {path}: {exc}") from None
     if fov_deg is not None and not is_fov_deg(fov_deg):
         raise UserError(f"--fov: needs 1 to 170 degrees (horizontal), got {fov_deg}")
     if fov_deg is None and focal_35mm:
         fov_deg = float(np.degrees(exif_fov(float(focal_35mm), width, height)))
-    m = _read_mask(Path(mask), width, height) if mask is not None else \
-        _read_mask(path, width, height, alpha=True, segment=segment)
+    m = _read_mask(Path(mask), width, height, upright=True) if mask is not None else \
+        _read_mask(path, width, height, alpha=True, segment=segment, upright=True)
     return unknown_camera_views(Views(np.radians(fov_deg) if fov_deg else DEFAULT_FOV, width, height, np.eye(4)[None],
-                                      m[None], [{"file_path": str(path.resolve())}], path.parent),
+                                      m[None], [{"file_path": str(path.resolve()), "upright": True}], path.parent),
                                 fov_known=fov_deg is not None)
 
 

@@ -3,6 +3,7 @@ render camera sees what the estimated camera would; the camera comes back from a
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
@@ -56,6 +57,36 @@ def test_a_photo_loads_with_an_unknown_camera(tmp_path, tiny_case):
     rgba[20:50, 25:40] = 255
     Image.fromarray(rgba).save(tmp_path / "photo.png")
     assert open_views(image=tmp_path / "photo.png").masks.sum() == 30 * 15
+
+
+def test_a_photo_is_read_as_a_viewer_shows_it(tmp_path, tiny_case):
+    """A phone's portrait photo is stored on its side with an Exif orientation: read upright (its
+    size, its alpha mask, its colours), with its focal length turned to the upright width; a grey
+    photo is segmented like a colour one, and a one-bit or palette mask reads as its values."""
+    from ipm.io.views import load_photos
+    from ipm.photo import exif_fov
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    rgb = np.asarray(Image.open(tiny_case / frame["file_path"]).convert("RGB"))[:, 8:56]  # 48 wide, 64 high
+    alpha = np.asarray(Image.open(tiny_case / frame["mask_path"]))[:, 8:56]
+    upright = Image.fromarray(np.dstack([rgb, alpha]))
+    upright.save(tmp_path / "upright.png")
+    exif = Image.Exif()
+    exif[0x0112] = 6  # stored turned a quarter: a viewer turns it back clockwise
+    exif.get_ifd(0x8769)[0xA405] = 26
+    upright.transpose(Image.ROTATE_90).save(tmp_path / "stored.png", exif=exif)
+    views, plain = photo_views(tmp_path / "stored.png"), photo_views(tmp_path / "upright.png", fov_deg=40.0)
+    assert (views.width, views.height) == (48, 64) and np.array_equal(views.masks, plain.masks)
+    assert views.fov_x == pytest.approx(exif_fov(26.0, 48, 64)) and exif_fov(26.0, 64, 48) > views.fov_x + 0.1
+    as_stored = replace(plain, frames=[{"file_path": str(tmp_path / "upright.png")}])
+    np.testing.assert_array_equal(load_photos(views), load_photos(as_stored))
+    Image.fromarray(rgb).convert("L").save(tmp_path / "grey.png")
+    grey = photo_views(tmp_path / "grey.png", fov_deg=40.0).masks[0] > 0.5
+    assert ((grey & (alpha > 127)).sum() / (grey | (alpha > 127)).sum()) > 0.8
+    for mode in ("1", "P"):
+        Image.fromarray(alpha).convert(mode).save(tmp_path / f"mask_{mode}.png")
+        given = photo_views(tmp_path / "upright.png", tmp_path / f"mask_{mode}.png", fov_deg=40.0)
+        np.testing.assert_array_equal(given.masks, plain.masks)
 
 
 @pytest.mark.parametrize("problem, match", [

@@ -100,17 +100,35 @@ a plain background: ``ipm.segment.mask_from_image``) or ``learned`` (a photograp
 shadows and a backdrop: ``ipm.segment.mask_from_photo``)."""
 
 
-def _read_mask(path: Path, width: int, height: int, alpha: bool = False, segment: str = "colour") -> np.ndarray:
+def open_image(path: str | os.PathLike, upright: bool = False) -> Image.Image:
+    """The image in ``path``, loaded; ``upright``: turned as its Exif orientation says a viewer
+    shows it (a phone's portrait photo is stored on its side with that tag), for a photo whose
+    camera is unknown. A capture's views are read as stored: their poses are the stored pixels'."""
+    from PIL import ImageOps
+
+    with Image.open(path) as img:
+        img.load()
+        return ImageOps.exif_transpose(img) if upright else img
+
+
+def _read_mask(path: Path, width: int, height: int, alpha: bool = False, segment: str = "colour",
+               upright: bool = False) -> np.ndarray:
     """The object mask in ``path``; with ``alpha``, a photo's: its alpha channel (RGBA, LA), else
-    segmented from its colours by ``segment`` (:data:`SEGMENTERS`, ``ipm.segment``)."""
+    segmented from its colours (a grey photo's as grey colours) by ``segment`` (:data:`SEGMENTERS`,
+    ``ipm.segment``); ``upright``: read as :func:`open_image` turns it."""
     if not path.is_file():
         raise UserError(f"mask file not found: {path}")
     try:
-        img = np.asarray(Image.open(path))
+        img = open_image(path, upright)
+        if img.mode in ("1", "P"):  # bits and palettes as the values they stand for
+            img = img.convert("L" if img.mode == "1" else "RGBA" if "transparency" in img.info else "RGB")
+        img = np.asarray(img)
     except Exception as exc:
         raise UserError(f"cannot read mask {path}: {exc}") from None
     if segment not in SEGMENTERS:
         raise UserError(f"unknown segmenter {segment!r} (known: {', '.join(SEGMENTERS)})")
+    if alpha and img.ndim == 2 and img.dtype == np.uint8:  # a grey photo
+        img = np.repeat(img[..., None], 3, axis=2)
     if alpha and img.ndim == 3 and img.shape[2] == 3:
         from ipm.segment import mask_from_image, mask_from_photo
 
@@ -300,8 +318,7 @@ def load_photos(views: Views) -> np.ndarray | None:
     for fr in views.frames:
         path = _frame_image(views.root, fr["file_path"])
         try:
-            with Image.open(path) as im:
-                rgb = np.asarray(im.convert("RGB"), np.float64) / 255.0
+            rgb = np.asarray(open_image(path, fr.get("upright", False)).convert("RGB"), np.float64) / 255.0
         except (OSError, ValueError) as exc:
             raise UserError(f"cannot read colour image {path}: {exc}") from None
         if rgb.shape[:2] != (views.height, views.width) and views.lens is None:

@@ -41,10 +41,10 @@ def photo_sheet(photo: str, mesh: str, camera: dict, out_png: str, height: int =
     240 degrees about its vertical axis."""
     from PIL import Image
 
-    from ipm.io.views import linear_from_srgb
+    from ipm.io.views import linear_from_srgb, open_image
     from ipm.metrics.silhouette import raycasting_scene
 
-    img = Image.open(photo).convert("RGB")
+    img = open_image(photo, upright=True).convert("RGB")
     width = max(8, int(round(img.width * height / img.height)))
     rgb = np.asarray(img.resize((width, height), Image.BILINEAR), np.float64) / 255.0
     rgb = linear_from_srgb(rgb)
