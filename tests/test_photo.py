@@ -80,9 +80,13 @@ def test_a_photo_is_read_as_a_viewer_shows_it(tmp_path, tiny_case):
     assert views.fov_x == pytest.approx(exif_fov(26.0, 48, 64)) and exif_fov(26.0, 64, 48) > views.fov_x + 0.1
     as_stored = replace(plain, frames=[{"file_path": str(tmp_path / "upright.png")}])
     np.testing.assert_array_equal(load_photos(views), load_photos(as_stored))
+    truth = alpha > 127
+    Image.fromarray(np.dstack([rgb, np.full_like(alpha, 255)])).save(tmp_path / "opaque.png")
     Image.fromarray(rgb).convert("L").save(tmp_path / "grey.png")
-    grey = photo_views(tmp_path / "grey.png", fov_deg=40.0).masks[0] > 0.5
-    assert ((grey & (alpha > 127)).sum() / (grey | (alpha > 127)).sum()) > 0.8
+    Image.fromarray(rgb).convert("CMYK").save(tmp_path / "print.jpg", quality=95)
+    for name in ("opaque.png", "grey.png", "print.jpg"):  # no alpha that tells: segmented by colour
+        found = photo_views(tmp_path / name, fov_deg=40.0).masks[0] > 0.5
+        assert (found & truth).sum() / (found | truth).sum() > 0.8, name
     for mode in ("1", "P"):
         Image.fromarray(alpha).convert(mode).save(tmp_path / f"mask_{mode}.png")
         given = photo_views(tmp_path / "upright.png", tmp_path / f"mask_{mode}.png", fov_deg=40.0)

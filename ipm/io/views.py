@@ -113,23 +113,26 @@ def open_image(path: str | os.PathLike, upright: bool = False) -> Image.Image:
 
 def _read_mask(path: Path, width: int, height: int, alpha: bool = False, segment: str = "colour",
                upright: bool = False) -> np.ndarray:
-    """The object mask in ``path``; with ``alpha``, a photo's: its alpha channel (RGBA, LA), else
-    segmented from its colours (a grey photo's as grey colours) by ``segment`` (:data:`SEGMENTERS`,
-    ``ipm.segment``); ``upright``: read as :func:`open_image` turns it."""
+    """The object mask in ``path``; with ``alpha``, a photo's: its alpha channel (RGBA, LA; not one
+    that hides nothing), else segmented from its colours (a grey photo's as grey colours) by
+    ``segment`` (:data:`SEGMENTERS`, ``ipm.segment``); ``upright``: read as :func:`open_image` turns it."""
     if not path.is_file():
         raise UserError(f"mask file not found: {path}")
     try:
         img = open_image(path, upright)
-        if img.mode in ("1", "P"):  # bits and palettes as the values they stand for
-            img = img.convert("L" if img.mode == "1" else "RGBA" if "transparency" in img.info else "RGB")
+        see_through = img.mode in ("RGBA", "LA", "PA") or "transparency" in img.info
+        if alpha:  # a photo: its colours (a grey photo's as grey ones, CMYK's as RGB) and its alpha if any
+            img = img.convert("RGBA" if see_through else "RGB")
+        elif img.mode in ("1", "P"):  # bits and palettes as the values they stand for
+            img = img.convert("L" if img.mode == "1" else "RGBA" if see_through else "RGB")
         img = np.asarray(img)
     except Exception as exc:
         raise UserError(f"cannot read mask {path}: {exc}") from None
     if segment not in SEGMENTERS:
         raise UserError(f"unknown segmenter {segment!r} (known: {', '.join(SEGMENTERS)})")
-    if alpha and img.ndim == 2 and img.dtype == np.uint8:  # a grey photo
-        img = np.repeat(img[..., None], 3, axis=2)
-    if alpha and img.ndim == 3 and img.shape[2] == 3:
+    if alpha and img.shape[2] == 4 and img[..., 3].min() == 255:  # an alpha channel that hides nothing
+        img = img[..., :3]
+    if alpha and img.shape[2] == 3:
         from ipm.segment import mask_from_image, mask_from_photo
 
         try:
@@ -137,9 +140,7 @@ def _read_mask(path: Path, width: int, height: int, alpha: bool = False, segment
         except UserError as exc:
             raise UserError(f"{path}: no mask given, no alpha channel, and {exc}") from None
     elif alpha:
-        if img.ndim != 3 or img.shape[2] not in (2, 4):
-            raise UserError(f"{path} has no alpha channel or colours to take the mask from (and no mask is given)")
-        img = img[..., -1]
+        img = img[..., 3]
     elif img.ndim == 3:
         img = img[..., 0] if img.shape[2] < 4 else img[..., 3] if img[..., :3].max() == 0 else img[..., 0]
     if img.shape != (height, width):
