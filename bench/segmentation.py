@@ -6,19 +6,22 @@ a plain background); each segmenter's mask is scored by its IoU with the true ma
 backdrop, with the means per class and family.
 
     .venv/bin/python bench/segmentation.py [--cases cup_1 building_1] [--res 256] [--spp 128]
-        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...] [--plain]
+        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...] [--plain] [--full-size]
 
 Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border),
 ``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut), ``network``
 (the shipped network's probability above 0.5, no GrabCut) and, for each ``--weights`` file,
 ``learned:STEM`` and ``network:STEM`` (the same with those weights), with ``--held``
-``learned:held`` (``mask_from_photo(release=False)``: nothing released), all on the same photographs.
+``learned:held`` (``mask_from_photo(release=False)``: nothing released), with ``--full-size``
+``colour:full`` and ``learned:full`` (photos larger than ``ipm.segment.SEGMENT_PX`` segmented at
+their own size, not shrunk to it), all on the same photographs, with each segmenter's seconds.
 Tune nothing on test cases: the defaults are the dev cups and buildings.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +69,17 @@ def network_mask(img: np.ndarray, model=None) -> np.ndarray:
     return (probability(img, model) > 0.5).astype(np.float32)
 
 
+def full_size(segment, img: np.ndarray) -> np.ndarray:
+    """``segment`` (``ipm.segment``'s mask function) on ``img`` at its full size, however large."""
+    import ipm.segment
+
+    kept, ipm.segment.SEGMENT_PX = ipm.segment.SEGMENT_PX, 1 << 30
+    try:
+        return segment(img)
+    finally:
+        ipm.segment.SEGMENT_PX = kept
+
+
 def score(mask: np.ndarray, truth: np.ndarray) -> float:
     """The IoU of ``mask > 0.5`` with the true mask."""
     from ipm.metrics.silhouette import view_ious
@@ -106,12 +120,17 @@ def main(argv: list[str] | None = None) -> None:
                     "releasing what the network took for ground beside it (learned:held)")
     ap.add_argument("--plain", action="store_true", help="score the hemi layout's input view (a plain background) "
                     "instead of the photographs")
+    ap.add_argument("--full-size", action="store_true", help="also score colour and learned on photos larger than "
+                    "ipm.segment.SEGMENT_PX at their full size (colour:full, learned:full), not shrunk to it")
     args = ap.parse_args(argv)
     configure_threads(1, "cpu")
     set_mitsuba_variant("cpu", 1)
     segmenters = {"colour": mask_from_image, "learned": mask_from_photo, "network": network_mask}
     if args.held:
         segmenters["learned:held"] = lambda img: mask_from_photo(img, release=False)
+    if args.full_size:
+        segmenters["colour:full"] = lambda img: full_size(mask_from_image, img)
+        segmenters["learned:full"] = lambda img: full_size(mask_from_photo, img)
     for path in args.weights:
         segmenters[f"learned:{Path(path).stem}"] = lambda img, model=load(path): mask_from_photo(img, model)
         segmenters[f"network:{Path(path).stem}"] = lambda img, model=load(path): network_mask(img, model)
@@ -124,20 +143,25 @@ def main(argv: list[str] | None = None) -> None:
             row = {"case": case, "backdrop": backdrop, "class": "cups" if spec["generator"] == "dishes" else "buildings",
                    "family": case_family(spec)}
             for name, fn in segmenters.items():
+                t0 = time.perf_counter()
                 try:
                     row[name] = round(score(fn(rgb), truth), 4)
                 except UserError:
                     row[name] = 0.0
+                row[f"{name} s"] = round(time.perf_counter() - t0, 3)
             rows.append(row)
-    out = {"res": args.res, "spp": args.spp, "rows": rows, "summary": summary(rows, list(segmenters))}
+    seconds = {name: round(float(np.mean([r[f"{name} s"] for r in rows])), 3) for name in segmenters}
+    out = {"res": args.res, "spp": args.spp, "rows": rows, "summary": summary(rows, list(segmenters)),
+           "seconds_per_photo": seconds}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, out)
     for group, by in out["summary"].items():
         print(f"{group:16s}", "  ".join(f"{s} {v['mean']:.3f} (worst {v['worst']:.3f}, n {v['n']})" for s, v in by.items()))
-    for name in (n for n in segmenters if n.startswith("learned:")):  # other weights against the shipped ones
-        d = np.array([r[name] - r["learned"] for r in rows])  # (learned:held: negative where the release helps)
+    print("seconds a photo:", "  ".join(f"{s} {v:.2f}" for s, v in seconds.items()))
+    for name in (n for n in segmenters if ":" in n):  # other weights or sizes against the shipped ones
+        d = np.array([r[name] - r[name.split(":")[0]] for r in rows])  # (learned:held: negative where the release helps)
         se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
-        print(f"{name} - learned: paired {d.mean():+.4f} (SE {se:.4f}; {(d > 0.005).sum()} better, "
+        print(f"{name} - {name.split(':')[0]}: paired {d.mean():+.4f} (SE {se:.4f}; {(d > 0.005).sum()} better, "
               f"{(d < -0.005).sum()} worse by more than 0.005)")
 
 

@@ -29,6 +29,33 @@ BORDER = 0.02
 MARGIN = 2.0
 """A pixel is object where its distance to the background model is this many times the distance
 all but 0.5 % of the border stays under (at least 1: one CIELAB unit on a flat background)."""
+SEGMENT_PX = 512
+"""A photo longer than this on its long side is segmented by :func:`mask_from_photo` at this size
+(area averaged) and its mask enlarged back (:func:`_at_most`): GrabCut's time grows with the
+pixels (a 12-megapixel phone photo took 90 s). The colour model of the border keeps every pixel
+(docs/decisions.md, "Segmenting a large photo")."""
+
+
+def _at_most(segment):
+    """``segment`` (an image's mask function) run on the image shrunk to :data:`SEGMENT_PX` where it
+    is larger, its mask enlarged back to the image's size; smaller images as they are."""
+    from functools import wraps
+
+    @wraps(segment)
+    def bounded(rgb, *args, **kwargs):
+        rgb = _rgb(rgb)
+        h, w = rgb.shape[:2]
+        scale = SEGMENT_PX / max(h, w)
+        if scale >= 1.0:
+            return segment(rgb, *args, **kwargs)
+        import cv2
+
+        size = (max(16, round(w * scale)), max(16, round(h * scale)))
+        small = segment(cv2.resize(np.ascontiguousarray(rgb[..., :3]), size, interpolation=cv2.INTER_AREA),
+                        *args, **kwargs)
+        return (cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)
+
+    return bounded
 
 
 def _frame(shape: tuple[int, ...]) -> np.ndarray:
@@ -101,6 +128,7 @@ def mask_from_image(rgb: np.ndarray) -> np.ndarray:
     return _cleaned(dist > threshold)
 
 
+@_at_most
 def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None) -> np.ndarray:
     """Object mask (H, W) float32 in {0, 1} of a photograph (H, W, 3; uint8, or float in [0, 1]):
     the learned segmenter's probability (``ipm.learned.segmenter``, ``model`` or the shipped one:

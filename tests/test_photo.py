@@ -140,6 +140,25 @@ def test_masks_from_the_image_on_a_plain_background(tiny_case, rng):
     assert iou(cut) > 0.9 and truth[-1].any()
 
 
+def test_a_large_photo_is_segmented_at_a_bounded_size(monkeypatch, tiny_case):
+    """A photograph longer than ``SEGMENT_PX`` is segmented by the learned path shrunk to it and its
+    mask comes back at the photo's size; a smaller one is segmented as it is."""
+    import ipm.learned.segmenter as segmenter
+    import ipm.segment as segment
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    rgb = np.asarray(Image.open(tiny_case / frame["file_path"]).convert("RGB"))
+    truth = np.asarray(Image.open(tiny_case / frame["mask_path"])) > 127
+    seen, probability = [], segmenter.probability
+    monkeypatch.setattr(segmenter, "probability", lambda img, model=None: seen.append(img.shape[:2])
+                        or probability(img, model))
+    small = segment.mask_from_photo(rgb) > 0.5
+    large = segment.mask_from_photo(np.kron(rgb, np.ones((12, 12, 1), np.uint8))) > 0.5  # 768 px
+    assert seen == [(64, 64), (512, 512)] and large.shape == (768, 768)
+    big_truth = np.kron(truth, np.ones((12, 12), bool))
+    assert (large & big_truth).sum() / (large | big_truth).sum() > (small & truth).sum() / (small | truth).sum() - 0.05
+
+
 @pytest.mark.slow
 def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
     """Smoke profile through the command line: one photo, no mask (segmented), no camera: the
