@@ -6,7 +6,7 @@ a plain background); each segmenter's mask is scored by its IoU with the true ma
 backdrop, with the means per class and family.
 
     .venv/bin/python bench/segmentation.py [--cases cup_1 building_1] [--res 256] [--spp 128]
-        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...] [--plain] [--full-size]
+        [--out results/bench/segmentation.json] [--weights SEGMENTER.json ...] [--plain] [--full-size] [--distance K] [--uncropped]
 
 Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the border),
 ``learned`` (``ipm.segment.mask_from_photo``: the shipped segmenter, then GrabCut), ``network``
@@ -14,7 +14,8 @@ Segmenters: ``colour`` (``ipm.segment.mask_from_image``, the colour model of the
 ``learned:STEM`` and ``network:STEM`` (the same with those weights), with ``--held``
 ``learned:held`` (``mask_from_photo(release=False)``: nothing released), with ``--full-size``
 ``colour:full`` and ``learned:full`` (photos larger than ``ipm.segment.SEGMENT_PX`` segmented at
-their own size, not shrunk to it), all on the same photographs, with each segmenter's seconds.
+their own size, not shrunk to it), with ``--uncropped`` ``learned:uncropped`` (no second look at a
+small object), all on the same photographs, with each segmenter's seconds.
 Tune nothing on test cases: the defaults are the dev cups and buildings.
 """
 from __future__ import annotations
@@ -32,9 +33,10 @@ DEV = ["cup_1", "cup_2", "cup_d1", "cup_d2", "cup_d3", "cup_d4", "cup_bowl", "cu
        "building_ext", "building_t_house"]
 
 
-def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
+def photograph(case: str, backdrop: str, res: int, spp: int, distance: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The case's input view as a JPEG photograph (res, res, 3) uint8 on ``backdrop``, and its true mask
-    (both as its lens draws them)."""
+    (both as its lens draws them); ``distance``: the camera that many times as far from the object's
+    middle (a smaller object in the frame)."""
     from ipm.io.views import jpeg_roundtrip, srgb_bytes
     from ipm.cases import load_case
     from ipm.synth import PHOTO_QUALITY, case_cameras, ground_truth_mesh, photographs
@@ -42,6 +44,8 @@ def photograph(case: str, backdrop: str, res: int, spp: int) -> tuple[np.ndarray
     spec = load_case(case)
     v, f, labels, uv = ground_truth_mesh(spec)
     c2w, fov = case_cameras(spec, v, 1, "photo")
+    middle = (v.min(0) + v.max(0)) / 2
+    c2w[:, :3, 3] = middle + distance * (c2w[:, :3, 3] - middle)
     linear, masks, _ = photographs(case, spec, v, f, labels, uv, c2w, fov, res, spp, backdrop)
     return jpeg_roundtrip(srgb_bytes(linear[0]), PHOTO_QUALITY), masks[0] > 0.5
 
@@ -120,6 +124,10 @@ def main(argv: list[str] | None = None) -> None:
                     "releasing what the network took for ground beside it (learned:held)")
     ap.add_argument("--plain", action="store_true", help="score the hemi layout's input view (a plain background) "
                     "instead of the photographs")
+    ap.add_argument("--distance", type=float, default=1.0, help="photographs from this many times as far (a "
+                    "smaller object in the frame)")
+    ap.add_argument("--uncropped", action="store_true", help="also score the learned path without its second look "
+                    "at a small object (learned:uncropped)")
     ap.add_argument("--full-size", action="store_true", help="also score colour and learned on photos larger than "
                     "ipm.segment.SEGMENT_PX at their full size (colour:full, learned:full), not shrunk to it")
     args = ap.parse_args(argv)
@@ -128,6 +136,8 @@ def main(argv: list[str] | None = None) -> None:
     segmenters = {"colour": mask_from_image, "learned": mask_from_photo, "network": network_mask}
     if args.held:
         segmenters["learned:held"] = lambda img: mask_from_photo(img, release=False)
+    if args.uncropped:
+        segmenters["learned:uncropped"] = lambda img: mask_from_photo(img, crop=False)
     if args.full_size:
         segmenters["colour:full"] = lambda img: full_size(mask_from_image, img)
         segmenters["learned:full"] = lambda img: full_size(mask_from_photo, img)
@@ -139,7 +149,7 @@ def main(argv: list[str] | None = None) -> None:
         spec = load_case(case)
         for backdrop in ("plain",) if args.plain else BACKDROPS:
             rgb, truth = plain_view(case, args.res, args.spp) if args.plain else photograph(case, backdrop, args.res,
-                                                                                            args.spp)
+                                                                                            args.spp, args.distance)
             row = {"case": case, "backdrop": backdrop, "class": "cups" if spec["generator"] == "dishes" else "buildings",
                    "family": case_family(spec)}
             for name, fn in segmenters.items():
@@ -151,7 +161,7 @@ def main(argv: list[str] | None = None) -> None:
                 row[f"{name} s"] = round(time.perf_counter() - t0, 3)
             rows.append(row)
     seconds = {name: round(float(np.mean([r[f"{name} s"] for r in rows])), 3) for name in segmenters}
-    out = {"res": args.res, "spp": args.spp, "rows": rows, "summary": summary(rows, list(segmenters)),
+    out = {"res": args.res, "spp": args.spp, "distance": args.distance, "rows": rows, "summary": summary(rows, list(segmenters)),
            "seconds_per_photo": seconds}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, out)

@@ -24,6 +24,11 @@ for ground")."""
 RELEASE_REACH = 0.75
 """How far from the mask (times the square root of its area) a pixel may be released; the ground's
 colours are taken beyond it (less what is joined to the object: ``_joined``)."""
+CROP = 0.5
+"""Where the network's object (its probability above 0.5) spans, enlarged by half, less than this
+share of the photo's shorter side, :func:`mask_from_photo` segments the photo again cropped to a
+square about it (:func:`_crop_box`): the network reads photos at 128 px, where a small object is a
+few pixels across (docs/decisions.md, "A small object cropped")."""
 BORDER = 0.02
 """Width of the border frame whose colours are the background's (times the image's shorter side)."""
 MARGIN = 2.0
@@ -129,13 +134,14 @@ def mask_from_image(rgb: np.ndarray) -> np.ndarray:
 
 
 @_at_most
-def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None) -> np.ndarray:
+def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None, crop: bool = True) -> np.ndarray:
     """Object mask (H, W) float32 in {0, 1} of a photograph (H, W, 3; uint8, or float in [0, 1]):
     the learned segmenter's probability (``ipm.learned.segmenter``, ``model`` or the shipped one:
     it tells the object from its ground, shadow and backdrop) starts OpenCV's GrabCut (the confident
     object and background fixed, the rest probable), which sets the edges at the photo's size;
     with ``release`` (default :data:`RELEASE`) the object's colours then take back confident
-    background that looks like it (:func:`_released`)."""
+    background that looks like it (:func:`_released`); with ``crop``, a small object is segmented
+    again in a crop about it (:data:`CROP`)."""
     import cv2
 
     from ipm.learned.segmenter import probability
@@ -145,12 +151,35 @@ def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None) ->
                                 np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
     release = RELEASE if release is None else release
     prob = probability(img8, model)
+    box = _crop_box(prob > 0.5) if crop else None
+    if box is not None:  # the object again, cropped to it, and nothing beyond the crop
+        (y0, y1), (x0, x1) = box
+        mask = np.zeros(img8.shape[:2], np.float32)
+        mask[y0:y1, x0:x1] = mask_from_photo(img8[y0:y1, x0:x1], model, release, crop=False)
+        return mask
     gc = np.select([prob < SURE, prob > 1 - SURE, prob > 0.5], [cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_FGD],
                    cv2.GC_PR_BGD).astype(np.uint8)
     if not (gc == cv2.GC_FGD).any() and not (gc == cv2.GC_PR_FGD).any():
         raise UserError("the segmenter finds no object in the photo: give a mask")
     mask = _grab_cut(img8, gc)
     return _released(img8, gc, mask) if release else mask
+
+
+def _crop_box(obj: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """The rows and columns (start, stop) of a square about the pixels of ``obj`` (H, W) bool, 1.5
+    times their box's longer side, clipped to the image; None where there are none or the square
+    is not smaller than :data:`CROP` of the image's shorter side."""
+    if not obj.any():
+        return None
+    h, w = obj.shape
+    rows, cols = np.nonzero(obj.any(1))[0], np.nonzero(obj.any(0))[0]
+    side = 1.5 * max(rows[-1] + 1 - rows[0], cols[-1] + 1 - cols[0])
+    if side >= CROP * min(h, w):
+        return None
+    side = max(side, 16.0)
+    cy, cx = (rows[0] + rows[-1] + 1) / 2, (cols[0] + cols[-1] + 1) / 2
+    span = lambda c, n: (max(0, int(round(c - side / 2))), min(n, int(round(c + side / 2))))  # noqa: E731
+    return span(cy, h), span(cx, w)
 
 
 def _grab_cut(img8: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -159,6 +159,33 @@ def test_a_large_photo_is_segmented_at_a_bounded_size(monkeypatch, tiny_case):
     assert (large & big_truth).sum() / (large | big_truth).sum() > (small & truth).sum() / (small | truth).sum() - 0.05
 
 
+def test_a_small_object_is_segmented_again_in_a_crop(monkeypatch, tiny_case, rng):
+    """The cup's 64 px view in the middle of a 320 px plain photo: the network reads the whole photo
+    at 128 px, finds the object small and the learned path segments a square crop about it again;
+    the cup's own 64 px photo needs no crop. ``_crop_box``: 1.5 times the object's box, clipped."""
+    import ipm.learned.segmenter as segmenter
+    from ipm.segment import CROP, _crop_box, mask_from_photo
+
+    frame = json.loads((tiny_case / "transforms.json").read_text())["frames"][0]
+    rgb = np.asarray(Image.open(tiny_case / frame["file_path"]).convert("RGB"))
+    truth = np.asarray(Image.open(tiny_case / frame["mask_path"])) > 127
+    photo = np.clip(rgb[0, 0] + rng.normal(0, 2, (320, 320, 3)), 0, 255).astype(np.uint8)
+    photo[128:192, 128:192] = rgb
+    placed = np.zeros((320, 320), bool)
+    placed[128:192, 128:192] = truth
+    seen, probability = [], segmenter.probability
+    monkeypatch.setattr(segmenter, "probability", lambda img, model=None: seen.append(img.shape[:2])
+                        or probability(img, model))
+    mask = mask_from_photo(photo) > 0.5
+    assert mask.shape == (320, 320) and len(seen) == 2 and max(seen[1]) < CROP * 320
+    assert (mask & placed).sum() / (mask | placed).sum() > 0.85
+    mask_from_photo(rgb)
+    assert seen[2:] == [(64, 64)]
+    obj = np.zeros((100, 200), bool)
+    obj[40:60, 10:30] = True
+    assert _crop_box(obj) == ((35, 65), (5, 35)) and _crop_box(obj[:, :40]) is None and _crop_box(~obj & False) is None
+
+
 @pytest.mark.slow
 def test_a_bare_photo_reconstructs(tmp_path, tiny_case):
     """Smoke profile through the command line: one photo, no mask (segmented), no camera: the
