@@ -133,30 +133,38 @@ def mask_from_image(rgb: np.ndarray) -> np.ndarray:
     return _cleaned(dist > threshold)
 
 
-@_at_most
 def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None, crop: bool = True) -> np.ndarray:
     """Object mask (H, W) float32 in {0, 1} of a photograph (H, W, 3; uint8, or float in [0, 1]):
     the learned segmenter's probability (``ipm.learned.segmenter``, ``model`` or the shipped one:
     it tells the object from its ground, shadow and backdrop) starts OpenCV's GrabCut (the confident
-    object and background fixed, the rest probable), which sets the edges at the photo's size;
-    with ``release`` (default :data:`RELEASE`) the object's colours then take back confident
-    background that looks like it (:func:`_released`); with ``crop``, a small object is segmented
-    again in a crop about it (:data:`CROP`)."""
-    import cv2
-
+    object and background fixed, the rest probable), which sets the edges at the photo's size (at
+    most :data:`SEGMENT_PX`); with ``release`` (default :data:`RELEASE`) the object's colours then
+    take back confident background that looks like it (:func:`_released`); with ``crop``, a small
+    object is segmented in a crop about it, taken at the photo's full size (:data:`CROP`)."""
     from ipm.learned.segmenter import probability
 
     rgb = _rgb(rgb)
     img8 = np.ascontiguousarray(rgb[..., :3] if rgb.dtype == np.uint8 else
                                 np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
     release = RELEASE if release is None else release
+    box = _crop_box(probability(img8, model) > 0.5) if crop else None
+    if box is None:
+        return _segmented(img8, model, release)
+    (y0, y1), (x0, x1) = box  # the object again, cropped to it, and nothing beyond the crop
+    mask = np.zeros(img8.shape[:2], np.float32)
+    mask[y0:y1, x0:x1] = _segmented(np.ascontiguousarray(img8[y0:y1, x0:x1]), model, release)
+    return mask
+
+
+@_at_most
+def _segmented(img8: np.ndarray, model, release: bool) -> np.ndarray:
+    """:func:`mask_from_photo`'s mask of an 8-bit photo as it is: the network's probability, GrabCut
+    from it and the release."""
+    import cv2
+
+    from ipm.learned.segmenter import probability
+
     prob = probability(img8, model)
-    box = _crop_box(prob > 0.5) if crop else None
-    if box is not None:  # the object again, cropped to it, and nothing beyond the crop
-        (y0, y1), (x0, x1) = box
-        mask = np.zeros(img8.shape[:2], np.float32)
-        mask[y0:y1, x0:x1] = mask_from_photo(img8[y0:y1, x0:x1], model, release, crop=False)
-        return mask
     gc = np.select([prob < SURE, prob > 1 - SURE, prob > 0.5], [cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_FGD],
                    cv2.GC_PR_BGD).astype(np.uint8)
     if not (gc == cv2.GC_FGD).any() and not (gc == cv2.GC_PR_FGD).any():
