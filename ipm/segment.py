@@ -36,31 +36,9 @@ MARGIN = 2.0
 all but 0.5 % of the border stays under (at least 1: one CIELAB unit on a flat background)."""
 SEGMENT_PX = 512
 """A photo longer than this on its long side is segmented by :func:`mask_from_photo` at this size
-(area averaged) and its mask enlarged back (:func:`_at_most`): GrabCut's time grows with the
+(area averaged) and its mask enlarged back (:func:`_segmented`): GrabCut's time grows with the
 pixels (a 12-megapixel phone photo took 90 s). The colour model of the border keeps every pixel
 (docs/decisions.md, "Segmenting a large photo")."""
-
-
-def _at_most(segment):
-    """``segment`` (an image's mask function) run on the image shrunk to :data:`SEGMENT_PX` where it
-    is larger, its mask enlarged back to the image's size; smaller images as they are."""
-    from functools import wraps
-
-    @wraps(segment)
-    def bounded(rgb, *args, **kwargs):
-        rgb = _rgb(rgb)
-        h, w = rgb.shape[:2]
-        scale = SEGMENT_PX / max(h, w)
-        if scale >= 1.0:
-            return segment(rgb, *args, **kwargs)
-        import cv2
-
-        size = (max(16, round(w * scale)), max(16, round(h * scale)))
-        small = segment(cv2.resize(np.ascontiguousarray(rgb[..., :3]), size, interpolation=cv2.INTER_AREA),
-                        *args, **kwargs)
-        return (cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)
-
-    return bounded
 
 
 def _frame(shape: tuple[int, ...]) -> np.ndarray:
@@ -147,24 +125,31 @@ def mask_from_photo(rgb: np.ndarray, model=None, release: bool | None = None, cr
     img8 = np.ascontiguousarray(rgb[..., :3] if rgb.dtype == np.uint8 else
                                 np.clip(rgb[..., :3] * 255 + 0.5, 0, 255).astype(np.uint8))
     release = RELEASE if release is None else release
-    box = _crop_box(probability(img8, model) > 0.5) if crop else None
+    prob = probability(img8, model) if crop else None
+    box = None if prob is None else _crop_box(prob > 0.5)
     if box is None:
-        return _segmented(img8, model, release)
+        return _segmented(img8, model, release, prob)
     (y0, y1), (x0, x1) = box  # the object again, cropped to it, and nothing beyond the crop
     mask = np.zeros(img8.shape[:2], np.float32)
     mask[y0:y1, x0:x1] = _segmented(np.ascontiguousarray(img8[y0:y1, x0:x1]), model, release)
     return mask
 
 
-@_at_most
-def _segmented(img8: np.ndarray, model, release: bool) -> np.ndarray:
-    """:func:`mask_from_photo`'s mask of an 8-bit photo as it is: the network's probability, GrabCut
-    from it and the release."""
+def _segmented(img8: np.ndarray, model, release: bool, prob: np.ndarray | None = None) -> np.ndarray:
+    """:func:`mask_from_photo`'s mask of an 8-bit photo as it is: the network's probability (``prob``
+    where already read off this photo), GrabCut from it and the release; a photo longer than
+    :data:`SEGMENT_PX` shrunk to it first and its mask enlarged back."""
     import cv2
 
     from ipm.learned.segmenter import probability
 
-    prob = probability(img8, model)
+    h, w = img8.shape[:2]
+    scale = SEGMENT_PX / max(h, w)
+    if scale < 1.0:
+        small = cv2.resize(img8, (max(16, round(w * scale)), max(16, round(h * scale))), interpolation=cv2.INTER_AREA)
+        mask = _segmented(small, model, release)
+        return (cv2.resize(mask, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)
+    prob = probability(img8, model) if prob is None else prob
     gc = np.select([prob < SURE, prob > 1 - SURE, prob > 0.5], [cv2.GC_BGD, cv2.GC_FGD, cv2.GC_PR_FGD],
                    cv2.GC_PR_BGD).astype(np.uint8)
     if not (gc == cv2.GC_FGD).any() and not (gc == cv2.GC_PR_FGD).any():
